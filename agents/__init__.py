@@ -1,0 +1,1 @@
+"""Controllers, residual wrappers and policy adapters for ptrack_gym environments."""

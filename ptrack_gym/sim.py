@@ -1,0 +1,295 @@
+"""The one owner of a PyBullet physics client, and a handle on an arm loaded in it.
+
+:class:`BulletSim` connects a client (``p.DIRECT`` by default, ``p.GUI`` on request),
+sets a fixed time step and explicit gravity, steps, and disconnects (idempotently).
+:class:`BulletArm` is the joint bookkeeping of one fixed-base arm in that client: it
+reads and resets joint states, applies clipped joint torques and answers PyBullet's
+dynamics queries with validated Python lists (PyBullet crashes on some numpy inputs
+and silently accepts lists of the wrong length).
+
+Conventions of every arm loaded here:
+
+* ``URDF_USE_INERTIA_FROM_FILE``: the inertia tensors of the URDF are used, not ones
+  PyBullet would compute from collision shapes;
+* the default velocity motors that PyBullet attaches to every joint are disabled
+  (``VELOCITY_CONTROL`` with zero force), so the only joint torques are ours;
+* linear, angular and joint damping are set to zero, so the plant is exactly
+  ``M(q) q̈ + C(q, q̇) q̇ + g(q) = τ`` (friction, when wanted, is modelled explicitly);
+* self-collision is off and there is no ground plane: the arm moves in free space.
+"""
+
+from __future__ import annotations
+
+import weakref
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as p
+from numpy.typing import NDArray
+
+from ptrack_gym.errors import InvalidConfigError, SimulationClosedError
+
+FloatArray = NDArray[np.float64]
+
+
+def _disconnect(client_id: int) -> None:
+    """Disconnect a client if it is still connected (used by the finaliser)."""
+    try:
+        if p.isConnected(physicsClientId=client_id):
+            p.disconnect(physicsClientId=client_id)
+    except p.error:  # pragma: no cover - interpreter shutdown
+        pass
+
+
+class BulletSim:
+    """One PyBullet physics client with a fixed time step.
+
+    Args:
+        timestep_s: physics time step (s); 1e-3 gives the default 1 kHz.
+        gravity_mps2: magnitude of gravity (m/s²), applied along −z.
+        gui: open a ``p.GUI`` window instead of a headless ``p.DIRECT`` client.
+
+    The client is disconnected by :meth:`close`, by a context manager exit, or when the
+    object is garbage-collected, whichever comes first.
+    """
+
+    def __init__(
+        self, timestep_s: float = 1e-3, gravity_mps2: float = 9.81, gui: bool = False
+    ) -> None:
+        if not (np.isfinite(timestep_s) and timestep_s > 0.0):
+            raise InvalidConfigError(f"timestep_s must be a positive number, got {timestep_s!r}")
+        if not np.isfinite(gravity_mps2):
+            raise InvalidConfigError(f"gravity_mps2 must be finite, got {gravity_mps2!r}")
+        self.timestep_s = float(timestep_s)
+        self.gravity_mps2 = float(gravity_mps2)
+        self.client_id: int = p.connect(p.GUI if gui else p.DIRECT)
+        if self.client_id < 0:
+            raise RuntimeError("PyBullet could not connect a physics client")
+        self._finalizer = weakref.finalize(self, _disconnect, self.client_id)
+        p.resetSimulation(physicsClientId=self.client_id)
+        p.setGravity(0.0, 0.0, -self.gravity_mps2, physicsClientId=self.client_id)
+        p.setTimeStep(self.timestep_s, physicsClientId=self.client_id)
+        # One internal step per stepSimulation call: the time step is exactly timestep_s.
+        p.setPhysicsEngineParameter(numSubSteps=0, physicsClientId=self.client_id)
+
+    @property
+    def connected(self) -> bool:
+        """Whether the client is still connected."""
+        return self._finalizer.alive
+
+    def _require_connected(self) -> int:
+        if not self._finalizer.alive:
+            raise SimulationClosedError("this BulletSim has been closed")
+        return self.client_id
+
+    def load_arm(
+        self, urdf_path: str, joint_names: Sequence[str], torque_limits_nm: Sequence[float]
+    ) -> BulletArm:
+        """Load a fixed-base arm and return its handle (see the module conventions)."""
+        cid = self._require_connected()
+        body_id = p.loadURDF(
+            urdf_path,
+            basePosition=[0.0, 0.0, 0.0],
+            useFixedBase=True,
+            flags=p.URDF_USE_INERTIA_FROM_FILE,
+            physicsClientId=cid,
+        )
+        return BulletArm(self, body_id, joint_names, torque_limits_nm)
+
+    def step(self) -> None:
+        """Advance the simulation by one time step (``timestep_s``)."""
+        p.stepSimulation(physicsClientId=self._require_connected())
+
+    def close(self) -> None:
+        """Disconnect the client. Safe to call more than once."""
+        self._finalizer()
+
+    def __enter__(self) -> BulletSim:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@dataclass(frozen=True)
+class JointInfo:
+    """What the URDF says about one movable joint (SI units)."""
+
+    name: str
+    index: int
+    lower: float
+    upper: float
+    link_name: str
+
+
+class BulletArm:
+    """Joint bookkeeping and dynamics queries of one fixed-base arm in a :class:`BulletSim`.
+
+    Only the joints named in ``joint_names`` are controlled. The URDF must have no other
+    movable joint (lock others by making them ``fixed`` in the URDF), so that PyBullet's
+    degrees of freedom are exactly the controlled joints, in order.
+    """
+
+    def __init__(
+        self,
+        sim: BulletSim,
+        body_id: int,
+        joint_names: Sequence[str],
+        torque_limits_nm: Sequence[float],
+    ) -> None:
+        self.sim = sim
+        self.body_id = body_id
+        cid = sim.client_id
+        by_name: dict[str, JointInfo] = {}
+        movable: list[str] = []
+        self.num_links = p.getNumJoints(body_id, physicsClientId=cid)
+        for j in range(self.num_links):
+            info = p.getJointInfo(body_id, j, physicsClientId=cid)
+            name = info[1].decode()
+            if info[2] != p.JOINT_FIXED:
+                movable.append(name)
+            by_name[name] = JointInfo(name, j, float(info[8]), float(info[9]), info[12].decode())
+        if list(joint_names) != movable:
+            raise InvalidConfigError(
+                f"the URDF's movable joints {movable} must be exactly the controlled joints "
+                f"{list(joint_names)}, in order"
+            )
+        self.joints = tuple(by_name[n] for n in joint_names)
+        self.joint_indices = [j.index for j in self.joints]
+        self.n = len(self.joints)
+        self.torque_limits_nm = np.asarray(torque_limits_nm, dtype=np.float64)
+        if self.torque_limits_nm.shape != (self.n,) or np.any(self.torque_limits_nm <= 0):
+            raise InvalidConfigError("torque_limits_nm must be n positive numbers")
+        self._link_index = {by_name[n].link_name: by_name[n].index for n in by_name}
+        for link in range(-1, self.num_links):
+            p.changeDynamics(
+                body_id,
+                link,
+                linearDamping=0.0,
+                angularDamping=0.0,
+                jointDamping=0.0,
+                physicsClientId=cid,
+            )
+        p.setJointMotorControlArray(
+            body_id,
+            self.joint_indices,
+            p.VELOCITY_CONTROL,
+            forces=[0.0] * self.n,
+            physicsClientId=cid,
+        )
+
+    # -- validation ----------------------------------------------------------------
+    def as_list(self, x: FloatArray | Sequence[float], what: str) -> list[float]:
+        """Return ``x`` as a list of n floats, or raise ``ValueError`` naming ``what``."""
+        arr = np.asarray(x, dtype=np.float64)
+        if arr.shape != (self.n,):
+            raise ValueError(f"{what} must have shape ({self.n},), got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(
+                f"{what} has non-finite entries at {np.flatnonzero(~np.isfinite(arr))}"
+            )
+        return arr.tolist()
+
+    def link_index(self, link_name: str) -> int:
+        """PyBullet link index of the link called ``link_name``."""
+        try:
+            return self._link_index[link_name]
+        except KeyError:
+            raise InvalidConfigError(
+                f"unknown link {link_name!r}; known: {sorted(self._link_index)}"
+            ) from None
+
+    # -- state ---------------------------------------------------------------------
+    def reset_state(self, q: FloatArray, qd: FloatArray) -> None:
+        """Teleport the joints to positions ``q`` (rad) and velocities ``qd`` (rad/s)."""
+        cid = self.sim._require_connected()
+        ql, qdl = self.as_list(q, "q"), self.as_list(qd, "qd")
+        p.resetJointStatesMultiDof(
+            self.body_id,
+            self.joint_indices,
+            targetValues=[[v] for v in ql],
+            targetVelocities=[[v] for v in qdl],
+            physicsClientId=cid,
+        )
+
+    def state(self) -> tuple[FloatArray, FloatArray]:
+        """Joint positions (rad) and velocities (rad/s), each of shape (n,)."""
+        cid = self.sim._require_connected()
+        states = p.getJointStates(self.body_id, self.joint_indices, physicsClientId=cid)
+        q = np.fromiter((s[0] for s in states), dtype=np.float64, count=self.n)
+        qd = np.fromiter((s[1] for s in states), dtype=np.float64, count=self.n)
+        return q, qd
+
+    def clip_torque(self, tau_nm: FloatArray) -> FloatArray:
+        """Clip joint torques (N·m) to ±``torque_limits_nm`` (PyBullet does not)."""
+        return np.clip(tau_nm, -self.torque_limits_nm, self.torque_limits_nm)
+
+    def apply_torque(self, tau_nm: FloatArray) -> None:
+        """Command joint torques (N·m) for the next step, clipped to the limits.
+
+        PyBullet keeps no reliable hold of torque commands across steps, so callers
+        re-send the command before every ``stepSimulation``.
+        """
+        cid = self.sim._require_connected()
+        forces = self.as_list(self.clip_torque(np.asarray(tau_nm, dtype=np.float64)), "tau")
+        p.setJointMotorControlArray(
+            self.body_id, self.joint_indices, p.TORQUE_CONTROL, forces=forces, physicsClientId=cid
+        )
+
+    # -- dynamics queries (state-free: they take q, qd explicitly) ----------------
+    def mass_matrix(self, q: FloatArray) -> FloatArray:
+        """Joint-space inertia matrix M(q) (kg·m²), shape (n, n)."""
+        cid = self.sim._require_connected()
+        return np.array(
+            p.calculateMassMatrix(self.body_id, self.as_list(q, "q"), physicsClientId=cid)
+        )
+
+    def inverse_dynamics(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        """τ = M(q) q̈ + C(q, q̇) q̇ + g(q) (N·m), by PyBullet's recursive Newton–Euler."""
+        cid = self.sim._require_connected()
+        return np.array(
+            p.calculateInverseDynamics(
+                self.body_id,
+                self.as_list(q, "q"),
+                self.as_list(qd, "qd"),
+                self.as_list(qdd, "qdd"),
+                physicsClientId=cid,
+            )
+        )
+
+    def link_masses(self) -> FloatArray:
+        """Masses (kg) of the links 0..num_links-1 (the fixed base excluded)."""
+        cid = self.sim._require_connected()
+        return np.array(
+            [
+                p.getDynamicsInfo(self.body_id, j, physicsClientId=cid)[0]
+                for j in range(self.num_links)
+            ]
+        )
+
+    def link_coms(self, q: FloatArray) -> FloatArray:
+        """World centre-of-mass positions (m) of links 0..num_links-1 at pose ``q``, (L, 3).
+
+        Moves the arm's joints to ``q`` (zero velocity): use only on a query-only body.
+        """
+        cid = self.sim._require_connected()
+        self.reset_state(q, np.zeros(self.n))
+        states = p.getLinkStates(
+            self.body_id,
+            list(range(self.num_links)),
+            computeForwardKinematics=1,
+            physicsClientId=cid,
+        )
+        return np.array([s[0] for s in states])
+
+    def link_pose(self, link_name: str) -> tuple[FloatArray, FloatArray]:
+        """World position (m) and quaternion (x, y, z, w) of a link frame, current state."""
+        cid = self.sim._require_connected()
+        st = p.getLinkState(
+            self.body_id,
+            self.link_index(link_name),
+            computeForwardKinematics=1,
+            physicsClientId=cid,
+        )
+        return np.array(st[4]), np.array(st[5])
