@@ -396,7 +396,14 @@ class PathTables:
 
     def __call__(self, s: float) -> PathPoint:
         """Interpolated reference quantities at ``s`` (any real; wrapped to the period)."""
-        v = self._spline(s % self.period_s)
+        return self._point(self._spline(s % self.period_s))
+
+    def pair(self, s1: float, s2: float) -> tuple[PathPoint, PathPoint]:
+        """``(self(s1), self(s2))`` with one spline evaluation (the controller's hot path)."""
+        v = self._spline(np.mod((s1, s2), self.period_s))
+        return self._point(v[0]), self._point(v[1])
+
+    def _point(self, v: FloatArray) -> PathPoint:
         n = self.n
         return PathPoint(
             q=v[:n],

@@ -1,0 +1,276 @@
+"""The passivity-based trajectory-tracking controller of Mahony (CDC 2019).
+
+Equations as restated in ``shared/CONTROL_LAW.md`` (which fixes the paper's double
+count of W_r in H_r). The controller tracks the path q_r(s) *up to a time offset*: it
+carries its own path parameter s with rate ṡ, and σ, the path parameter of the true
+system, whose rate σ̇ = sqrt(q̇ᵀM q̇ / M_r(s)) is the arm's speed ratio to the path.
+
+Notation (SI units; s, σ in seconds of path time): with measured (q, q̇),
+
+.. math::
+
+    \\tau_{\\dot q} = M(q)\\dot q, \\quad v^2 = \\dot q^T M \\dot q, \\quad
+    \\dot\\sigma = \\sqrt{v^2 / M_r(s)}, \\quad \\tilde s = s - \\sigma, \\quad
+    \\dot{\\tilde s} = \\dot s - \\dot\\sigma
+
+    \\phi = \\tfrac12 (q - q_r(s))^T K (q - q_r(s)), \\quad \\psi = \\tfrac12\\kappa\\tilde s^2
+
+    \\tau_r^0 = \\frac{v^2}{M_r}\\tau_r - \\frac{\\dot q^T\\tau_r}{M_r}\\tau_{\\dot q}, \\quad
+    \\mu = \\frac{W_r'(\\sigma) - \\kappa\\tilde s - R\\dot{\\tilde s}}{\\sqrt{M_r(s)}}
+
+    \\tau_{sync} = -\\mu\\,\\tau_{\\dot q}/v + \\tau_r^0 - \\partial\\phi/\\partial q, \\quad
+    e_c = -\\kappa\\tilde s - R\\dot{\\tilde s} + (\\partial\\phi/\\partial q)^T q_r'(s)
+
+    H_r = \\tfrac12 M_r(s)(\\dot s^2 - 1), \\quad
+    f = -k(H + W_r(\\sigma))\\,\\tau_{\\dot q} \\text{ (metric) or } \\dot q \\text{ (paper)},
+    \\quad f_r = -k H_r \\dot s
+
+    \\tau = \\tau_{sync} + f, \\quad
+    M_r(s)\\ddot s = -\\tfrac12 M_r'(s)(\\dot s^2 - 1) + e_c + f_r
+
+Storage function E = H + W_r(σ) + H_r + φ + ψ, with Ė = −R s̃̇² (k = 0, no disturbance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from agents.base import FloatArray
+from ptrack_gym.paths import PathTables
+from ptrack_gym.robots.model import RobotModel
+
+_PUMPS = ("metric", "paper")
+_STARTS = ("nearest", "reference")
+
+
+@dataclass(frozen=True)
+class PassivityGains:
+    """Gains of the passivity controller.
+
+    Attributes:
+        K: spring stiffness of φ (N·m/rad): a scalar (K·I) or one value per joint (diagonal).
+        kappa: κ > 0, stiffness of the phase spring ψ = ½κ s̃² (J/s²).
+        R: R > 0, damping of the phase-rate error s̃̇ (J·s/s² = J/s).
+        k_pump: k ≥ 0, energy-pump gain (1/(J·s) for "metric", N·m·s/(rad·J) for "paper").
+        pump: "metric" — f = −k(H + W_r(σ)) M q̇ (coordinate-free, default) — or "paper" —
+            f = −k(H + W_r(σ)) q̇ (the paper's written form).
+        speed_eps: below this √(q̇ᵀMq̇) (√J) the direction τ_q̇/speed is taken as 0, as the
+            paper prescribes for speed ≈ 0; keeps the law finite at rest.
+    """
+
+    K: float | tuple[float, ...] = 100.0
+    kappa: float = 10.0
+    R: float = 0.2
+    k_pump: float = 20.0
+    pump: str = "metric"
+    speed_eps: float = 1e-6
+
+    def __post_init__(self) -> None:
+        k = np.atleast_1d(np.asarray(self.K, dtype=np.float64))
+        if k.ndim != 1 or not np.all(np.isfinite(k)) or np.any(k <= 0):
+            raise ValueError(
+                f"K must be a positive scalar or positive per-joint values, got {self.K!r}"
+            )
+        for name in ("kappa", "R"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+        if not (np.isfinite(self.k_pump) and self.k_pump >= 0):
+            raise ValueError(f"k_pump must be >= 0, got {self.k_pump!r}")
+        if self.pump not in _PUMPS:
+            raise ValueError(f"pump must be one of {_PUMPS}, got {self.pump!r}")
+        if not (np.isfinite(self.speed_eps) and self.speed_eps > 0):
+            raise ValueError(f"speed_eps must be positive, got {self.speed_eps!r}")
+
+    def stiffness(self, n: int) -> FloatArray:
+        """The diagonal of K as an (n,) array."""
+        k = np.atleast_1d(np.asarray(self.K, dtype=np.float64))
+        if k.shape == (1,):
+            return np.full(n, k[0])
+        if k.shape != (n,):
+            raise ValueError(f"K has {k.shape[0]} entries, the robot has {n} joints")
+        return k.copy()
+
+
+class LawOutput(NamedTuple):
+    """Everything the control law computes at one state (SI units)."""
+
+    tau: FloatArray  # torque to send, τ = τ_sync + f (N·m)
+    s_dd: float  # s̈ (1/s)
+    sigma_dot: float  # σ̇, the speed ratio (1)
+    energy: float  # E = H + W_r(σ) + H_r + φ + ψ (J)
+    h_plus_w: float  # H(q, q̇) + W_r(σ) (J)
+    h_r: float  # H_r(s, ṡ) = ½ M_r (ṡ² − 1) (J)
+    phi: float  # φ (J)
+    psi: float  # ψ (J)
+    pump_power: float  # q̇ᵀf + ṡ f_r, power the pump injects (W)
+    dissipation: float  # R s̃̇², the passive dissipation rate (W)
+    s_tilde: float  # s̃ = s − σ (s)
+    s_tilde_dot: float  # s̃̇ = ṡ − σ̇ (1)
+    tau_sync: FloatArray  # (n,) N·m
+    tau_r0: FloatArray  # τ_r⁰, the work-free part of the reference torque, (n,) N·m
+    pump_torque: FloatArray  # f, (n,) N·m
+    path_error: float  # |q − q_r(s)| (rad)
+
+
+@dataclass
+class PassivityState:
+    """The controller's internal state: path parameter s (s), rate ṡ (1), σ (s)."""
+
+    s: float = 0.0
+    sd: float = 0.0
+    sigma: float = 0.0
+
+
+class PassivityController:
+    """Mahony's passivity-based tracking controller (see the module docstring).
+
+    Args:
+        model: the nominal dynamics model (never the simulated body).
+        tables: the reference tables of the path for that model.
+        gains: the controller gains.
+        start: how ``reset`` chooses s₀ — "nearest": the path point nearest q₀
+            (default; the controller does not care about time); "reference": s₀ = the
+            env's time-indexed phase s_ref.
+        sd0: ṡ₀ at reset; None (default) sets ṡ₀ = σ̇(q₀, q̇₀, s₀), so s̃̇₀ = 0: 0 from
+            rest, 1 on the path at nominal speed. σ₀ = s₀ always.
+
+    Integration (``step``): with (q, q̇) held over the control period dt, symplectic
+    Euler — ṡ ← ṡ + dt·s̈, s ← s + dt·ṡ(new), σ ← σ + dt·σ̇ — first order, like the
+    plant's own integrator in PyBullet.
+    """
+
+    def __init__(
+        self,
+        model: RobotModel,
+        tables: PathTables,
+        gains: PassivityGains | None = None,
+        start: str = "nearest",
+        sd0: float | None = None,
+    ) -> None:
+        if tables.n != model.n:
+            raise ValueError(f"tables have {tables.n} joints, model has {model.n}")
+        if start not in _STARTS:
+            raise ValueError(f"start must be one of {_STARTS}, got {start!r}")
+        self.model = model
+        self.tables = tables
+        self.gains = gains or PassivityGains()
+        self.n = model.n
+        self.k_diag = self.gains.stiffness(self.n)
+        self.start = start
+        self.sd0 = sd0
+        self.state = PassivityState()
+        self.last: LawOutput | None = None
+
+    # -- the law (pure) --------------------------------------------------------------
+    def law(self, q: FloatArray, qd: FloatArray, s: float, sd: float, sigma: float) -> LawOutput:
+        """Evaluate the control law at (q, q̇, s, ṡ, σ); changes no state."""
+        g = self.gains
+        ref, ref_sigma = self.tables.pair(s, sigma)
+        mass = self.model.mass_matrix(q)  # (n, n)
+        tau_qd = mass @ qd  # (n,) the dual of q̇
+        speed2 = max(float(qd @ tau_qd), 0.0)
+        speed = np.sqrt(speed2)
+        m_r = ref.m_r
+        sigma_dot = np.sqrt(speed2 / m_r)
+        s_t, s_td = s - sigma, sd - sigma_dot
+        err = q - ref.q  # (n,)
+        dphi_dq = self.k_diag * err  # ∂φ/∂q; ∂φ/∂q_r = −∂φ/∂q
+        phi = 0.5 * float(err @ dphi_dq)
+        psi = 0.5 * g.kappa * s_t**2
+        tau_r0 = (speed2 / m_r) * ref.tau - (float(qd @ ref.tau) / m_r) * tau_qd
+        mu = (ref_sigma.w_r_d - g.kappa * s_t - g.R * s_td) / np.sqrt(m_r)
+        tau_sync = tau_r0 - dphi_dq
+        if speed > g.speed_eps:
+            tau_sync = tau_sync - (mu / speed) * tau_qd
+        e_c = -g.kappa * s_t - g.R * s_td + float(dphi_dq @ ref.qd)
+        h_plus_w = 0.5 * speed2 + self.model.potential(q) + ref_sigma.w_r
+        h_r = 0.5 * m_r * (sd * sd - 1.0)
+        direction = tau_qd if g.pump == "metric" else qd
+        f = -g.k_pump * h_plus_w * direction
+        f_r = -g.k_pump * h_r * sd
+        s_dd = (-0.5 * ref.m_r_d * (sd * sd - 1.0) + e_c + f_r) / m_r
+        return LawOutput(
+            tau=tau_sync + f,
+            s_dd=float(s_dd),
+            sigma_dot=float(sigma_dot),
+            energy=float(h_plus_w + h_r + phi + psi),
+            h_plus_w=float(h_plus_w),
+            h_r=float(h_r),
+            phi=phi,
+            psi=float(psi),
+            pump_power=float(qd @ f + sd * f_r),
+            dissipation=float(g.R * s_td**2),
+            s_tilde=float(s_t),
+            s_tilde_dot=float(s_td),
+            tau_sync=tau_sync,
+            tau_r0=tau_r0,
+            pump_torque=f,
+            path_error=float(np.linalg.norm(err)),
+        )
+
+    # -- the Controller protocol -------------------------------------------------------
+    def reset(
+        self,
+        q: FloatArray,
+        qd: FloatArray,
+        s_ref: float = 0.0,
+        *,
+        s0: float | None = None,
+        sd0: float | None = None,
+        sigma0: float | None = None,
+    ) -> None:
+        """Set (s, ṡ, σ) for a new episode (see the class docstring for the defaults).
+
+        Keyword arguments ``s0``, ``sd0``, ``sigma0`` override the choice.
+        """
+        q = np.asarray(q, dtype=np.float64)
+        qd = np.asarray(qd, dtype=np.float64)
+        if s0 is None:
+            s0 = self.tables.nearest(q).s if self.start == "nearest" else float(s_ref)
+        if sigma0 is None:
+            sigma0 = s0
+        if sd0 is None:
+            sd0 = self.sd0
+        if sd0 is None:
+            m = self.model.mass_matrix(q)
+            sd0 = float(np.sqrt(max(float(qd @ m @ qd), 0.0) / self.tables(s0).m_r))
+        self.state = PassivityState(s=float(s0), sd=float(sd0), sigma=float(sigma0))
+        self.last = None
+
+    def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
+        """τ (N·m) for the measured (q, q̇); then integrate (s, ṡ, σ) over ``dt`` (s)."""
+        st = self.state
+        out = self.law(
+            np.asarray(q, dtype=np.float64), np.asarray(qd, dtype=np.float64), st.s, st.sd, st.sigma
+        )
+        self.last = out
+        sd_new = st.sd + dt * out.s_dd
+        self.state = PassivityState(
+            s=st.s + dt * sd_new, sd=sd_new, sigma=st.sigma + dt * out.sigma_dot
+        )
+        return out.tau
+
+    def diagnostics(self) -> dict[str, float]:
+        """s, ṡ, σ after the last step, and the law's scalars at that step."""
+        st = self.state
+        d = {"s": st.s, "sd": st.sd, "sigma": st.sigma}
+        out = self.last
+        if out is not None:
+            d.update(
+                s_tilde=out.s_tilde,
+                s_tilde_dot=out.s_tilde_dot,
+                sigma_dot=out.sigma_dot,
+                energy=out.energy,
+                h_plus_w=out.h_plus_w,
+                h_r=out.h_r,
+                phi=out.phi,
+                psi=out.psi,
+                pump_power=out.pump_power,
+                dissipation=out.dissipation,
+                path_error=out.path_error,
+            )
+        return d

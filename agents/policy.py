@@ -1,0 +1,91 @@
+"""Run a :class:`~agents.base.Controller` as a policy on a ptrack_gym environment.
+
+:class:`ControllerPolicy` satisfies Stable-Baselines3's ``predict`` protocol, so
+``stable_baselines3.common.evaluation.evaluate_policy`` scores a controller exactly as
+it scores a learned policy.
+
+Where the state comes from: by default the exact float64 joint state of the env
+(``env.unwrapped.joint_state()``) — the observation holds the same numbers rounded to
+float32. With ``state_source="observation"`` the adapter reads q, q̇ from the first 2n
+entries of the observation instead (for wrapped or remote envs).
+
+When the controller is reset: on the first call, and whenever SB3 passes
+``episode_start=True`` (after every env reset); ``reset_controller()`` does it by hand.
+The controller is reset with the env's current reference phase ``s_ref = s₀ + t``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from agents.base import Controller, FloatArray
+
+
+class ControllerPolicy:
+    """Adapter: a controller driving one ptrack env, with SB3's ``predict`` signature.
+
+    Args:
+        env: the environment (any wrapper of a ``TrackingEnv``; ``env.unwrapped`` is used
+            for the joint state, the reference phase, ``dt`` and the torque limits).
+        controller: the controller to run.
+        state_source: ``"env"`` (exact, default) or ``"observation"``.
+    """
+
+    def __init__(self, env: Any, controller: Controller, state_source: str = "env") -> None:
+        if state_source not in ("env", "observation"):
+            raise ValueError(f"state_source must be 'env' or 'observation', got {state_source!r}")
+        self.env = env.unwrapped
+        self.controller = controller
+        self.state_source = state_source
+        self.n = self.env.n
+        if controller.n != self.n:
+            raise ValueError(f"controller has {controller.n} joints, env has {self.n}")
+        self.torque_limits_nm = np.asarray(self.env.torque_limits_nm, dtype=np.float64)
+        self.last_tau_nm = np.zeros(self.n)
+        self._needs_reset = True
+
+    def _state(self, observation: np.ndarray) -> tuple[FloatArray, FloatArray]:
+        if self.state_source == "env":
+            return self.env.joint_state()
+        obs = np.asarray(observation, dtype=np.float64).reshape(-1)
+        return obs[: self.n].copy(), obs[self.n : 2 * self.n].copy()
+
+    def reset_controller(self, observation: np.ndarray | None = None) -> None:
+        """Reset the controller from the env's current state and reference phase."""
+        q, qd = self._state(observation if observation is not None else np.zeros(2 * self.n))
+        self.controller.reset(q, qd, self.env.s0 + self.env.t)
+        self._needs_reset = False
+
+    def torque(self, observation: np.ndarray) -> FloatArray:
+        """One control step: τ (N·m) for the env's current state."""
+        q, qd = self._state(observation)
+        tau = self.controller.step(q, qd, self.env.dt)
+        self.last_tau_nm = tau
+        return tau
+
+    def action(self, observation: np.ndarray) -> np.ndarray:
+        """One control step as a normalized action, a = clip(τ / τ_max, −1, 1), float32."""
+        tau = self.torque(observation)
+        return np.clip(tau / self.torque_limits_nm, -1.0, 1.0).astype(np.float32)
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """SB3's ``PolicyPredictor.predict``: accepts one observation (6n+2,) or a batch of
+        one (1, 6n+2) and returns the action with the same leading shape."""
+        obs = np.asarray(observation)
+        batched = obs.ndim == 2
+        if batched and obs.shape[0] != 1:
+            raise ValueError("ControllerPolicy drives one env: batch size must be 1")
+        if self._needs_reset or (
+            episode_start is not None and bool(np.asarray(episode_start).any())
+        ):
+            self.reset_controller(obs.reshape(-1))
+        action = self.action(obs.reshape(-1))
+        return (action[None, :] if batched else action), state
