@@ -29,7 +29,7 @@ def robot_controller(request):
 def test_lemma_5_1_on_the_reference(robot_controller) -> None:
     """At q = q_r(s), q̇ = q_r'(s), ṡ = 1, σ = s: τ = τ_r(s), s̈ = 0, σ̇ = 1, E = 0,
     H + W_r(σ) = 0, H_r = 0 — relative tolerance 1e-8, with the interpolated tables."""
-    spec, model, tables = robot_controller
+    _spec, model, tables = robot_controller
     ctrl = PassivityController(model, tables, PassivityGains(K=50.0, kappa=3.0, R=0.7, k_pump=5.0))
     for s in np.linspace(0.0, tables.period_s, 25, endpoint=False) + 0.0371:
         ref = tables.exact(s)
@@ -150,7 +150,7 @@ def test_theorem_4_1_in_simulation_converges_with_the_rate() -> None:
     """In PyBullet the balance holds up to the first-order error of zero-order-hold torque
     and semi-implicit Euler: the mismatch must shrink at least 3× when the rate is 4×
     higher (measured 9.0e-3 → 8.7e-4 with other gains), and E must decrease at 4 kHz."""
-    m1, d1, sat1 = _simulated_energy_mismatch(1000.0)
+    m1, _d1, sat1 = _simulated_energy_mismatch(1000.0)
     m4, d4, sat4 = _simulated_energy_mismatch(4000.0)
     assert not (sat1 or sat4)  # clipping would break passivity; the premise is checked
     assert abs(m4) < abs(m1) / 3.0
