@@ -223,7 +223,7 @@ class BulletArm:
 
     def clip_torque(self, tau_nm: FloatArray) -> FloatArray:
         """Clip joint torques (N·m) to ±``torque_limits_nm`` (PyBullet does not)."""
-        return np.clip(tau_nm, -self.torque_limits_nm, self.torque_limits_nm)
+        return np.minimum(np.maximum(tau_nm, -self.torque_limits_nm), self.torque_limits_nm)
 
     def apply_torque(self, tau_nm: FloatArray) -> None:
         """Command joint torques (N·m) for the next step, clipped to the limits.
@@ -235,6 +235,17 @@ class BulletArm:
         forces = self.as_list(self.clip_torque(np.asarray(tau_nm, dtype=np.float64)), "tau")
         p.setJointMotorControlArray(
             self.body_id, self.joint_indices, p.TORQUE_CONTROL, forces=forces, physicsClientId=cid
+        )
+
+    def apply_torque_list(self, forces_nm: list[float]) -> None:
+        """Hot path of :meth:`apply_torque` for callers that already validated and clipped
+        the torques: ``forces_nm`` must be a list of n finite floats within the limits."""
+        p.setJointMotorControlArray(
+            self.body_id,
+            self.joint_indices,
+            p.TORQUE_CONTROL,
+            forces=forces_nm,
+            physicsClientId=self.sim._require_connected(),
         )
 
     # -- dynamics queries (state-free: they take q, qd explicitly) ----------------

@@ -8,6 +8,7 @@ This module is glue: it composes a :class:`~ptrack_gym.robots.spec.RobotSpec`, a
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -134,8 +135,14 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             "render_mode": render_mode,
             "gui": gui,
         }
-        substeps = physics_hz / control_hz if control_hz > 0 else np.nan
-        if not (physics_hz > 0 and control_hz > 0 and abs(substeps - round(substeps)) < 1e-9):
+        rates_ok = all(
+            isinstance(r, (int, float)) and math.isfinite(r) and r > 0
+            for r in (physics_hz, control_hz)
+        )
+        substeps = physics_hz / control_hz if rates_ok else math.nan
+        if not (
+            math.isfinite(substeps) and 1.0 <= substeps and abs(substeps - round(substeps)) < 1e-9
+        ):
             raise InvalidConfigError(
                 f"physics_hz ({physics_hz}) must be a positive integer multiple of "
                 f"control_hz ({control_hz})"
@@ -174,6 +181,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         ang, vel = np.full(self.n, 4 * np.pi), np.full(self.n, self.max_speed)
         high = np.concatenate([ang, vel, ang, vel, 2 * ang, 2 * vel, [1.0, 1.0]])
         self._obs_high = high.astype(np.float32)
+        self._obs_high64 = self._obs_high.astype(np.float64)
+        self._obs_low64 = -self._obs_high64
         self.observation_space = spaces.Box(-self._obs_high, self._obs_high, dtype=np.float32)
 
         self._t = 0.0
@@ -230,8 +239,9 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         a = self._validate_action(action)
         tau = a * self.torque_limits_nm
+        forces = self.arm.clip_torque(tau).tolist()  # a is validated and clipped already
         for _ in range(self.substeps):
-            self.arm.apply_torque(tau)
+            self.arm.apply_torque_list(forces)
             self.sim.step()
         self._t += self.dt
         q, qd = self.arm.state()
@@ -259,7 +269,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
                 f"action has non-finite entries at indices {np.flatnonzero(bad).tolist()}: "
                 f"{a[bad].tolist()}"
             )
-        return np.clip(a, -1.0, 1.0)
+        return np.minimum(np.maximum(a, -1.0), 1.0)
 
     def _observe(
         self, a: FloatArray, tau: FloatArray, unstable: bool
@@ -269,21 +279,22 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         q_ref, qd_ref, _ = self.path.evaluate(s_ref)
         e, ed = q_ref - q, qd_ref - qd
         omega = 2.0 * np.pi * s_ref / self.path.period_s
-        obs = np.concatenate([q, qd, q_ref, qd_ref, e, ed, [np.sin(omega), np.cos(omega)]])
-        obs = np.clip(obs, -self._obs_high, self._obs_high).astype(np.float32)
+        obs = np.concatenate([q, qd, q_ref, qd_ref, e, ed, [math.sin(omega), math.cos(omega)]])
+        # np.minimum/maximum: same result as np.clip, a few µs cheaper on small arrays.
+        obs = np.minimum(np.maximum(obs, self._obs_low64), self._obs_high64).astype(np.float32)
         near = self.tables.nearest(q)
         w_path, w_time, w_effort = self.reward_weights
-        mass = self.model.mass_matrix(q)
+        e2 = float(e @ e)
         info = {
             "t_s": self._t,
             "s_ref": s_ref,
             "path_distance": near.distance,
             "path_s": near.s,
-            "tracking_error": float(np.linalg.norm(e)),
-            "energy_j": float(0.5 * qd @ mass @ qd + self.model.potential(q)),
+            "tracking_error": math.sqrt(e2),
+            "energy_j": self.model.kinetic_energy(q, qd) + self.model.potential(q),
             "tau_nm": tau,
             "reward_path": -w_path * near.distance**2,
-            "reward_time": -w_time * float(e @ e),
+            "reward_time": -w_time * e2,
             "reward_effort": -w_effort * float(a @ a) / self.n,
             "unstable": unstable,
         }
@@ -349,6 +360,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         return {
             "init_kwargs": self._init_kwargs,
             "np_random": self._np_random,
+            "np_random_seed": self._np_random_seed,
+            "env_spec": self.spec,
             "t": self._t,
             "s0": self._s0,
             "q": self._q.copy(),
@@ -358,6 +371,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__init__(**state["init_kwargs"])  # type: ignore[misc]
         self._np_random = state["np_random"]
+        self._np_random_seed = state["np_random_seed"]
+        self.spec = state["env_spec"]
         self._t, self._s0 = state["t"], state["s0"]
         self.arm.reset_state(state["q"], state["qd"])
         self._q, self._qd = self.arm.state()

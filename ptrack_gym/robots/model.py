@@ -83,6 +83,10 @@ class BulletModel:
         coms = self._arm.link_coms(q)  # (L, 3)
         return float(self.gravity_mps2 * (self._masses @ coms[:, 2]))
 
+    def kinetic_energy(self, q: FloatArray, qd: FloatArray) -> float:
+        """½ q̇ᵀ M(q) q̇ (J)."""
+        return 0.5 * float(qd @ self._arm.mass_matrix(q) @ qd)
+
     def close(self) -> None:
         """Disconnect the model's private client (idempotent)."""
         self._sim.close()
