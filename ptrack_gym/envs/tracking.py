@@ -9,6 +9,7 @@ This module is glue: it composes a :class:`~ptrack_gym.robots.spec.RobotSpec`, a
 from __future__ import annotations
 
 import math
+import numbers
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -136,7 +137,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             "gui": gui,
         }
         rates_ok = all(
-            isinstance(r, (int, float)) and math.isfinite(r) and r > 0
+            isinstance(r, numbers.Real) and math.isfinite(r) and r > 0
             for r in (physics_hz, control_hz)
         )
         substeps = physics_hz / control_hz if rates_ok else math.nan
@@ -168,11 +169,15 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
 
         spec = self.robot_spec
         self.model = BulletModel(spec)
-        self.path = self._build_path(path, path_seed)
-        check_joint_limits(self.path, *spec.limits())
-        self.tables = PathTables(self.path, self.model)
-        self.sim = BulletSim(timestep_s=self.physics_dt, gui=gui)
-        self.arm = self.sim.load_arm(spec.urdf_path, spec.joint_names, spec.torque_limits_nm)
+        try:
+            self.path = self._build_path(path, path_seed)
+            check_joint_limits(self.path, *spec.limits())
+            self.tables = PathTables(self.path, self.model)
+            self.sim = BulletSim(timestep_s=self.physics_dt, gui=gui)
+            self.arm = self.sim.load_arm(spec.urdf_path, spec.joint_names, spec.torque_limits_nm)
+        except BaseException:
+            self.close()  # no PyBullet client outlives a failed construction
+            raise
         self.n = spec.n
         self.torque_limits_nm = np.array(spec.torque_limits_nm)
         self.max_speed = spec.max_joint_speed_rad_s
@@ -319,6 +324,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
             return None
+        cid = self.sim._require_connected()
         spec = self.robot_spec
         width, height = 320, 240
         view = p.computeViewMatrixFromYawPitchRoll(
@@ -328,14 +334,14 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             pitch=-10.0,
             roll=0.0,
             upAxisIndex=2,
-            physicsClientId=self.sim.client_id,
+            physicsClientId=cid,
         )
         proj = p.computeProjectionMatrixFOV(
             fov=60.0,
             aspect=width / height,
             nearVal=0.05,
             farVal=10.0,
-            physicsClientId=self.sim.client_id,
+            physicsClientId=cid,
         )
         img = p.getCameraImage(
             width,
@@ -343,7 +349,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             view,
             proj,
             renderer=p.ER_TINY_RENDERER,
-            physicsClientId=self.sim.client_id,
+            physicsClientId=cid,
         )
         rgba = np.reshape(np.asarray(img[2], dtype=np.uint8), (height, width, 4))
         return rgba[:, :, :3].copy()

@@ -1,0 +1,45 @@
+"""Shared pytest fixtures: environment factories that always close what they made."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import gymnasium as gym
+import pytest
+
+import ptrack_gym  # noqa: F401  (registers the environment ids)
+
+
+class EnvFactory:
+    """Makes environments with ``gym.make`` and remembers them, so a fixture can close them.
+
+    ``track`` registers an environment made some other way (a pickled copy, a bare
+    ``TrackingEnv``) for the same clean-up.
+    """
+
+    def __init__(self) -> None:
+        self._envs: list[gym.Env[Any, Any]] = []
+
+    def __call__(self, env_id: str, **kwargs: Any) -> gym.Env[Any, Any]:
+        """``gym.make(env_id, **kwargs)``, closed at the end of the test."""
+        return self.track(gym.make(env_id, **kwargs))
+
+    def track(self, env: gym.Env[Any, Any]) -> gym.Env[Any, Any]:
+        """Close ``env`` at the end of the test; returns it unchanged."""
+        self._envs.append(env)
+        return env
+
+    def close_all(self) -> None:
+        """Close every tracked environment (closing twice is part of the contract)."""
+        for env in self._envs:
+            env.close()
+        self._envs.clear()
+
+
+@pytest.fixture
+def make_env() -> Iterator[EnvFactory]:
+    """A :class:`EnvFactory` whose environments are closed after the test."""
+    factory = EnvFactory()
+    yield factory
+    factory.close_all()
