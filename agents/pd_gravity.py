@@ -1,0 +1,81 @@
+"""PD control with gravity compensation and reference velocity feed-forward.
+
+.. math::
+
+    \\tau = K_p e + K_d \\dot e + g(q), \\qquad e = q_r - q, \\quad \\dot e = q_r' - \\dot q
+
+Takegaki & Arimoto (1981) proved this law (without q_r') globally asymptotically stable
+for a *fixed* set point. On a moving reference it is not a tracking controller: the
+inertial and Coriolis torques M q̈_r + C q̇_r of the reference are never supplied, so the
+arm lags the reference by roughly e ≈ K_p⁻¹ (M q̈_r + C q̇_r). ``docs/baselines.md`` reports
+the size of that steady error on each robot.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agents.base import FloatArray
+from agents.gains import PDGravityGains, gain_vector
+from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.paths import ReferencePath
+from ptrack_gym.robots.model import RobotModel
+
+
+class PDGravityController:
+    """PD + gravity compensation on the time-indexed reference q_r(s), s = s₀ + t.
+
+    The clock is set to the env's reference phase by :meth:`reset` and advanced by ``dt``
+    in :meth:`step`.
+
+    Args:
+        model: the controller's nominal dynamics model (only g(q) is used).
+        path: the reference path q_r(s), s in seconds.
+        gains: K_p (N·m/rad) and K_d (N·m·s/rad), diagonal.
+
+    Raises:
+        InvalidConfigError: (a ``ValueError``) bad gains, or a model/path mismatch.
+    """
+
+    def __init__(self, model: RobotModel, path: ReferencePath, gains: PDGravityGains) -> None:
+        if not isinstance(gains, PDGravityGains):
+            raise TypeError(f"gains must be PDGravityGains, got {type(gains).__name__}")
+        if path.n != model.n:
+            raise InvalidConfigError(f"path has {path.n} joints, model has {model.n}")
+        self.model = model
+        self.path = path
+        self.gains = gains
+        self.n = model.n
+        self.kp = gain_vector(gains.kp_nm_rad, self.n, "kp_nm_rad")  # (n,) N·m/rad
+        self.kd = gain_vector(gains.kd_nms_rad, self.n, "kd_nms_rad")  # (n,) N·m·s/rad
+        self._s: float | None = None
+        self._diag: dict[str, float] = {}
+
+    def reset(self, q: FloatArray, qd: FloatArray, s_ref: float) -> None:
+        """Start the clock at s = ``s_ref`` (s)."""
+        self._s = float(s_ref)
+        self._diag = {"s": self._s}
+
+    def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
+        """τ = K_p e + K_d ė + g(q) (N·m), shape (n,); then s ← s + dt."""
+        if self._s is None:
+            raise RuntimeError("call reset() before step()")
+        if not (np.isfinite(dt) and dt > 0.0):
+            raise InvalidConfigError(f"dt must be a positive number of seconds, got {dt!r}")
+        q_r, qd_r, _ = self.path.evaluate(self._s)
+        e = q_r - q  # (n,) rad
+        ed = qd_r - qd  # (n,) rad/s
+        tau = self.kp * e + self.kd * ed + self.model.gravity(q)
+        self._s += float(dt)
+        self._diag = {
+            "s": self._s,
+            "tracking_error": float(np.linalg.norm(e)),
+            "velocity_error": float(np.linalg.norm(ed)),
+        }
+        return tau
+
+    def diagnostics(self) -> dict[str, float]:
+        """``s``: the clock after the last step (s), equal to the env's ``s_ref`` then;
+        ``tracking_error`` |e| (rad) and ``velocity_error`` |ė| (rad/s) of the state
+        passed to the last step (against q_r(s − dt))."""
+        return dict(self._diag)

@@ -1,0 +1,144 @@
+"""The Slotine–Li adaptive-control law with a fixed (nominal) model.
+
+With e = q_r − q, ė = q_r' − q̇ and diagonal gains Λ (1/s), K_D (N·m·s/rad):
+
+.. math::
+
+    \\dot q_{ref} = q_r' + \\Lambda e, \\quad \\ddot q_{ref} = q_r'' + \\Lambda \\dot e,
+    \\quad r = \\dot q_{ref} - \\dot q = \\dot e + \\Lambda e,
+
+    \\tau = M(q)\\,\\ddot q_{ref} + C(q, \\dot q)\\,\\dot q_{ref} + g(q) + K_D r.
+
+(Slotine & Li, 1987, write s = q̇ − q̇_ref = −r and −K_D s.) C is the Christoffel-symbol
+Coriolis matrix, for which Ṁ − 2C is skew-symmetric; with the exact model the closed loop
+is M ṙ + C r + K_D r = 0 and
+
+.. math::
+
+    V = \\tfrac12 r^T M(q)\\, r + e^T \\Lambda K_D e, \\qquad
+    \\dot V = -\\dot e^T K_D \\dot e - e^T \\Lambda K_D \\Lambda e \\le 0
+
+(Λ K_D is symmetric because both are diagonal).
+
+C(q, q̇) q̇_ref is not the model's ``coriolis(q, q̇)`` = C(q, q̇) q̇. It follows exactly from
+the quadratic form h(x) = C(q, x) x: with Christoffel symbols
+c_ijk = ½(∂M_ij/∂q_k + ∂M_ik/∂q_j − ∂M_jk/∂q_i), symmetric in j and k,
+(C(q, a) b)_i = Σ_jk c_ijk a_k b_j is a symmetric bilinear form in (a, b), so by
+polarization
+
+.. math::
+
+    C(q, a)\\, b = \\tfrac12\\,[h(a + b) - h(a) - h(b)] = \\tfrac14\\,[h(a + b) - h(a - b)].
+
+:func:`christoffel_product` uses the second form through inverse dynamics with q̈ = 0,
+where g(q) cancels: two model calls, no finite differences.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agents.base import FloatArray
+from agents.gains import SlotineLiGains, gain_vector
+from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.paths import ReferencePath
+from ptrack_gym.robots.model import RobotModel
+
+
+def christoffel_product(
+    model: RobotModel, q: FloatArray, a: FloatArray, b: FloatArray
+) -> FloatArray:
+    """C(q, a) b (N·m) for the Christoffel Coriolis matrix, shape (n,).
+
+    .. math::
+
+        C(q, a)\\, b = \\tfrac14\\,[\\mathrm{ID}(q, a + b, 0) - \\mathrm{ID}(q, a - b, 0)],
+
+    ID(q, x, 0) = C(q, x) x + g(q) the model's inverse dynamics. Exact for any model whose
+    Coriolis term is an exact quadratic form in q̇ (rigid bodies); symmetric in (a, b).
+    ``a`` in rad/s, ``b`` in rad/s.
+    """
+    zeros = np.zeros(model.n)
+    return 0.25 * (
+        model.inverse_dynamics(q, a + b, zeros) - model.inverse_dynamics(q, a - b, zeros)
+    )
+
+
+class SlotineLiController:
+    """Slotine–Li tracking of the time-indexed reference q_r(s), s = s₀ + t, on the
+    nominal model (no parameter adaptation).
+
+    The clock is set to the env's reference phase by :meth:`reset` and advanced by ``dt``
+    in :meth:`step`. Each step costs three inverse-dynamics calls and one mass matrix
+    (the latter only for the Lyapunov value in :meth:`diagnostics`).
+
+    Args:
+        model: the controller's nominal dynamics model (never the simulator).
+        path: the reference path q_r(s), s in seconds.
+        gains: Λ (1/s) and K_D (N·m·s/rad), diagonal.
+
+    Raises:
+        InvalidConfigError: (a ``ValueError``) bad gains, or a model/path mismatch.
+    """
+
+    def __init__(self, model: RobotModel, path: ReferencePath, gains: SlotineLiGains) -> None:
+        if not isinstance(gains, SlotineLiGains):
+            raise TypeError(f"gains must be SlotineLiGains, got {type(gains).__name__}")
+        if path.n != model.n:
+            raise InvalidConfigError(f"path has {path.n} joints, model has {model.n}")
+        self.model = model
+        self.path = path
+        self.gains = gains
+        self.n = model.n
+        self.lam = gain_vector(gains.lambda_1_s, self.n, "lambda_1_s")  # (n,) 1/s
+        self.kd = gain_vector(gains.kd_nms_rad, self.n, "kd_nms_rad")  # (n,) N·m·s/rad
+        self._zeros = np.zeros(self.n)
+        self._s: float | None = None
+        self._diag: dict[str, float] = {}
+
+    def lyapunov(self, q: FloatArray, qd: FloatArray, s: float) -> float:
+        """V = ½ rᵀ M(q) r + eᵀ Λ K_D e (J) at state (q, q̇) against q_r(s)."""
+        q_r, qd_r, _ = self.path.evaluate(s)
+        e = q_r - q
+        r = qd_r - qd + self.lam * e
+        return float(0.5 * r @ self.model.mass_matrix(q) @ r + e @ (self.lam * self.kd * e))
+
+    def reset(self, q: FloatArray, qd: FloatArray, s_ref: float) -> None:
+        """Start the clock at s = ``s_ref`` (s)."""
+        self._s = float(s_ref)
+        self._diag = {"s": self._s}
+
+    def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
+        """τ = M q̈_ref + C(q, q̇) q̇_ref + g + K_D r (N·m), shape (n,); then s ← s + dt."""
+        if self._s is None:
+            raise RuntimeError("call reset() before step()")
+        if not (np.isfinite(dt) and dt > 0.0):
+            raise InvalidConfigError(f"dt must be a positive number of seconds, got {dt!r}")
+        q_r, qd_r, qdd_r = self.path.evaluate(self._s)
+        e = q_r - q  # (n,) rad
+        ed = qd_r - qd  # (n,) rad/s
+        qd_ref = qd_r + self.lam * e  # (n,) rad/s
+        qdd_ref = qdd_r + self.lam * ed  # (n,) rad/s²
+        r = ed + self.lam * e  # (n,) rad/s, = qd_ref − qd
+        tau = (
+            self.model.inverse_dynamics(q, self._zeros, qdd_ref)  # M q̈_ref + g
+            + christoffel_product(self.model, q, qd, qd_ref)  # C(q, q̇) q̇_ref
+            + self.kd * r
+        )
+        mass = self.model.mass_matrix(q)  # (n, n)
+        self._s += float(dt)
+        self._diag = {
+            "s": self._s,
+            "tracking_error": float(np.linalg.norm(e)),
+            "velocity_error": float(np.linalg.norm(ed)),
+            "sliding_error": float(np.linalg.norm(r)),
+            "lyapunov_j": float(0.5 * r @ mass @ r + e @ (self.lam * self.kd * e)),
+        }
+        return tau
+
+    def diagnostics(self) -> dict[str, float]:
+        """``s``: the clock after the last step (s), equal to the env's ``s_ref`` then;
+        for the state passed to the last step (against q_r(s − dt)): ``tracking_error``
+        |e| (rad), ``velocity_error`` |ė| (rad/s), ``sliding_error`` |r| (rad/s) and
+        ``lyapunov_j`` V (J)."""
+        return dict(self._diag)
