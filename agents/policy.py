@@ -12,6 +12,11 @@ entries of the observation instead (for wrapped or remote envs).
 When the controller is reset: on the first call, and whenever SB3 passes
 ``episode_start=True`` (after every env reset); ``reset_controller()`` does it by hand.
 The controller is reset with the env's current reference phase ``s_ref = s₀ + t``.
+
+Diagnostics: after every control step ``last_diagnostics`` holds the controller's
+``diagnostics()`` (for the passivity controller: s, ṡ, σ, s̃, s̃̇, σ̇, E and its terms,
+pump power, dissipation), and with ``record=True`` each step's dict is appended, with the
+torque, to ``records`` (cleared at every controller reset).
 """
 
 from __future__ import annotations
@@ -33,7 +38,9 @@ class ControllerPolicy:
         state_source: ``"env"`` (exact, default) or ``"observation"``.
     """
 
-    def __init__(self, env: Any, controller: Controller, state_source: str = "env") -> None:
+    def __init__(
+        self, env: Any, controller: Controller, state_source: str = "env", record: bool = False
+    ) -> None:
         if state_source not in ("env", "observation"):
             raise ValueError(f"state_source must be 'env' or 'observation', got {state_source!r}")
         self.env = env.unwrapped
@@ -44,6 +51,9 @@ class ControllerPolicy:
             raise ValueError(f"controller has {controller.n} joints, env has {self.n}")
         self.torque_limits_nm = np.asarray(self.env.torque_limits_nm, dtype=np.float64)
         self.last_tau_nm = np.zeros(self.n)
+        self.last_diagnostics: dict[str, float] = {}
+        self.record = record
+        self.records: list[dict[str, Any]] = []
         self._needs_reset = True
 
     def _state(self, observation: np.ndarray) -> tuple[FloatArray, FloatArray]:
@@ -56,6 +66,7 @@ class ControllerPolicy:
         """Reset the controller from the env's current state and reference phase."""
         q, qd = self._state(observation if observation is not None else np.zeros(2 * self.n))
         self.controller.reset(q, qd, self.env.s0 + self.env.t)
+        self.records = []
         self._needs_reset = False
 
     def torque(self, observation: np.ndarray) -> FloatArray:
@@ -63,6 +74,9 @@ class ControllerPolicy:
         q, qd = self._state(observation)
         tau = self.controller.step(q, qd, self.env.dt)
         self.last_tau_nm = tau
+        self.last_diagnostics = self.controller.diagnostics()
+        if self.record:
+            self.records.append({"t_s": self.env.t, "tau_nm": tau, **self.last_diagnostics})
         return tau
 
     def action(self, observation: np.ndarray) -> np.ndarray:

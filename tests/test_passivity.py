@@ -219,10 +219,14 @@ def test_policy_adapter_runs_an_episode_through_evaluate_policy() -> None:
     ctrl = PassivityController(
         u.model, u.tables, PassivityGains(K=20.0, kappa=2.0, R=0.5, k_pump=5.0)
     )
-    policy = ControllerPolicy(env, ctrl)
+    policy = ControllerPolicy(env, ctrl, record=True)
     rewards, lengths = evaluate_policy(policy, env, n_eval_episodes=2, return_episode_rewards=True)
     assert lengths == [300, 300]
     assert all(np.isfinite(rewards))
+    # The record holds the second episode only (cleared at reset), one row per step.
+    assert len(policy.records) == 300
+    assert policy.records[-1]["sigma"] == ctrl.diagnostics()["sigma"]
+    assert policy.last_diagnostics == ctrl.diagnostics()
     diag = ctrl.diagnostics()
     for key in ("s", "sd", "sigma", "s_tilde", "sigma_dot", "energy", "pump_power", "h_r"):
         assert np.isfinite(diag[key])
