@@ -4,9 +4,10 @@
 ``stable_baselines3.common.evaluation.evaluate_policy`` scores a controller exactly as
 it scores a learned policy.
 
-Where the state comes from: by default the exact float64 joint state of the env
-(``env.unwrapped.joint_state()``) — the observation holds the same numbers rounded to
-float32. With ``state_source="observation"`` the adapter reads q, q̇ from the first 2n
+Where the state comes from: by default the env's measured joint state in float64
+(``env.unwrapped.measured_joint_state()``: the true state seen through any sensing
+disturbance) — the observation holds the same numbers rounded to float32. With
+``state_source="observation"`` the adapter reads q, q̇ from the first 2n
 entries of the observation instead (for wrapped or remote envs).
 
 When the controller is reset: on the first call, and whenever SB3 passes
@@ -58,7 +59,7 @@ class ControllerPolicy:
 
     def _state(self, observation: np.ndarray) -> tuple[FloatArray, FloatArray]:
         if self.state_source == "env":
-            return self.env.joint_state()
+            return self.env.measured_joint_state()
         obs = np.asarray(observation, dtype=np.float64).reshape(-1)
         return obs[: self.n].copy(), obs[self.n : 2 * self.n].copy()
 

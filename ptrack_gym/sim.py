@@ -162,6 +162,15 @@ class BulletArm:
         if self.torque_limits_nm.shape != (self.n,) or np.any(self.torque_limits_nm <= 0):
             raise InvalidConfigError("torque_limits_nm must be n positive numbers")
         self._link_index = {by_name[n].link_name: by_name[n].index for n in by_name}
+        # Nominal (mass kg, local inertia diagonal kg·m²) of every link, read once at load.
+        self._nominal_dynamics = {
+            j: (
+                float(p.getDynamicsInfo(body_id, j, physicsClientId=cid)[0]),
+                tuple(p.getDynamicsInfo(body_id, j, physicsClientId=cid)[2]),
+            )
+            for j in range(self.num_links)
+        }
+        self._mass_changes: dict[int, tuple[float, float]] = {}
         for link in range(-1, self.num_links):
             p.changeDynamics(
                 body_id,
@@ -247,6 +256,61 @@ class BulletArm:
             forces=forces_nm,
             physicsClientId=self.sim._require_connected(),
         )
+
+    # -- plant editing (disturbances) ----------------------------------------------
+    def set_mass_changes(self, changes: dict[str, tuple[float, float]]) -> None:
+        """Set every link's mass to nominal·scale + added (kg), inertia to nominal·scale.
+
+        ``changes`` maps link names to ``(scale, added_kg)``; links not named return to
+        nominal. An added mass is a point mass at the link's centre of mass, so it adds no
+        inertia about it. Only links whose values change are sent to PyBullet.
+        """
+        cid = self.sim._require_connected()
+        wanted = {self.link_index(name): (float(s), float(m)) for name, (s, m) in changes.items()}
+        for j in set(wanted) | set(self._mass_changes):
+            scale, added = wanted.get(j, (1.0, 0.0))
+            if self._mass_changes.get(j, (1.0, 0.0)) == (scale, added):
+                continue
+            mass0, inertia0 = self._nominal_dynamics[j]
+            p.changeDynamics(
+                self.body_id,
+                j,
+                mass=mass0 * scale + added,
+                localInertiaDiagonal=[scale * i for i in inertia0],
+                physicsClientId=cid,
+            )
+        self._mass_changes = {j: v for j, v in wanted.items() if v != (1.0, 0.0)}
+
+    def link_mass(self, link_name: str) -> float:
+        """Current mass (kg) of a link of this body (reads the plant; not a dynamics query)."""
+        cid = self.sim._require_connected()
+        return float(
+            p.getDynamicsInfo(self.body_id, self.link_index(link_name), physicsClientId=cid)[0]
+        )
+
+    def apply_link_force(self, link_name: str, force_n: FloatArray) -> None:
+        """Apply a world-frame force (N) at a link's centre of mass for the next step only."""
+        cid = self.sim._require_connected()
+        j = self.link_index(link_name)
+        com = p.getLinkState(self.body_id, j, computeForwardKinematics=1, physicsClientId=cid)[0]
+        p.applyExternalForce(
+            self.body_id, j, list(map(float, force_n)), com, p.WORLD_FRAME, physicsClientId=cid
+        )
+
+    def com_jacobian(self, link_name: str, q: FloatArray) -> FloatArray:
+        """Translational Jacobian (m/rad) of a link's centre of mass at pose q, (3, n)."""
+        cid = self.sim._require_connected()
+        zeros = [0.0] * self.n
+        jac = p.calculateJacobian(
+            self.body_id,
+            self.link_index(link_name),
+            [0.0, 0.0, 0.0],
+            self.as_list(q, "q"),
+            zeros,
+            zeros,
+            physicsClientId=cid,
+        )[0]
+        return np.array(jac)
 
     # -- dynamics queries (state-free: they take q, qd explicitly) ----------------
     def mass_matrix(self, q: FloatArray) -> FloatArray:

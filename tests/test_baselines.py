@@ -220,9 +220,10 @@ def test_slotine_li_lyapunov_function_does_not_increase(
     discretization floor of the plant, not below it. PyBullet integrates by semi-implicit
     Euler, so the measured velocity is the secant over the last step and lags q_r' by about
     (dt/2) q_r''; the loop settles on that bias and V on a floor (≤ 3.6e-6 J two-link,
-    3.5e-8 J iiwa, by 2 s) that rises and falls with the reference. Measured with seed 3:
-    V falls monotonically from V₀ = 1.3 J (two-link) / 11.9 J (iiwa) to 1.1e-8 J / 3.6e-9 J
-    (t = 0.81 s / 1.56 s); afterwards single steps raise V by at most 1.4e-8 J / 2.0e-10 J.
+    3.5e-8 J iiwa, by 2 s) that rises and falls with the reference. Measured with seed 3
+    (reset streams of commit "disturbances"): V falls monotonically from V₀ = 0.62 J
+    (two-link) / 12.8 J (iiwa) below 1e-5 J by t = 0.65 s / 0.62 s; afterwards single steps
+    raise V by at most 4.4e-9 J / 1.4e-9 J.
     Halving dt divides the floor by 4 and those rises by 8: discretization, not the law.
     Claimed here: no rise at all while V > V_FLOOR = 1e-5 J, no rise above 1e-7 J per
     step anywhere, and V below V_FLOOR at the end. The run must not clip torques, which
@@ -247,7 +248,7 @@ def test_slotine_li_lyapunov_function_does_not_increase(
     assert controller.diagnostics()["lyapunov_j"] == pytest.approx(v[-1], rel=1e-9)
     rise = np.diff(v)
     above = v[:-1] > v_floor_j
-    assert v[0] > 1e5 * v_floor_j
+    assert v[0] > 1e4 * v_floor_j  # not vacuous: V starts far above the floor
     assert np.all(rise[above] <= 0.0), f"V rose by {np.max(rise[above]):.2e} J above the floor"
     assert np.max(rise) <= max_rise_j
     assert v[-1] < v_floor_j

@@ -17,6 +17,12 @@ import numpy as np
 import pybullet as p
 from gymnasium import spaces
 
+from ptrack_gym.disturbances import (
+    DisturbanceContext,
+    DisturbanceSet,
+    DisturbanceSpec,
+    build_disturbances,
+)
 from ptrack_gym.errors import InvalidActionError, InvalidConfigError
 from ptrack_gym.paths import (
     PathTables,
@@ -119,6 +125,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         start_offset_rad: float = 0.1,
         reward_weights: tuple[float, float, float] = (10.0, 1.0, 0.01),
         unstable_penalty: float = 100.0,
+        disturbance: DisturbanceSpec | list[DisturbanceSpec] | None = None,
+        horizon_s: float = 10.0,
         render_mode: str | None = None,
         gui: bool = False,
     ) -> None:
@@ -133,6 +141,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             "start_offset_rad": start_offset_rad,
             "reward_weights": reward_weights,
             "unstable_penalty": unstable_penalty,
+            "disturbance": disturbance,
+            "horizon_s": horizon_s,
             "render_mode": render_mode,
             "gui": gui,
         }
@@ -166,6 +176,9 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         self.start_mode = start
         self.start_noise_rad = float(start_noise_rad)
         self.start_offset_rad = float(start_offset_rad)
+        if not (math.isfinite(horizon_s) and horizon_s > 0):
+            raise InvalidConfigError(f"horizon_s must be positive, got {horizon_s!r}")
+        self.disturbances = DisturbanceSet(build_disturbances(disturbance, robot))
 
         spec = self.robot_spec
         self.model = BulletModel(spec)
@@ -190,10 +203,27 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         self._obs_low64 = -self._obs_high64
         self.observation_space = spaces.Box(-self._obs_high, self._obs_high, dtype=np.float32)
 
-        self._t = 0.0
+        self._steps = 0  # control steps this episode; time is steps · dt (no drift)
         self._s0 = 0.0
         self._q = np.array(spec.home_q_rad)
         self._qd = np.zeros(self.n)
+        self._q_meas, self._qd_meas = self._q, self._qd
+        self._dist_tau = np.zeros(self.n)
+        self._dist_work = 0.0
+        home = np.array(spec.home_q_rad)
+        grid_speed = np.linalg.norm(self.path.evaluate(self.tables.grid_s)[1], axis=1)
+        self.disturbance_context = DisturbanceContext(
+            n=self.n,
+            torque_limits_nm=self.torque_limits_nm.copy(),
+            physics_dt_s=self.physics_dt,
+            control_dt_s=self.dt,
+            horizon_s=float(horizon_s),
+            ee_link=spec.ee_link,
+            home_mass_matrix=self.model.mass_matrix(home),
+            ee_jacobian_home=self.model.com_jacobian(spec.ee_link, home),
+            mean_path_speed_rad_s=float(np.mean(grid_speed)),
+        )
+        self._substep_accounting = self.disturbances.needs_substep_state
 
     # -- construction helpers ------------------------------------------------------
     def _build_path(self, path: str | ReferencePath, path_seed: int | None) -> ReferencePath:
@@ -224,7 +254,9 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         unknown = set(options) - {"s0", "q", "qd"}
         if unknown:
             raise InvalidConfigError(f"unknown reset options {sorted(unknown)}; known: s0, q, qd")
-        rng = self.np_random
+        # Two child streams, always two draws: the start state and the disturbances'
+        # schedule never depend on each other, nor on the actions.
+        rng, dist_rng = self.np_random.spawn(2)
         s0 = float(options.get("s0", rng.uniform(0.0, self.path.period_s)))
         q_ref, qd_ref, _ = self.path.evaluate(s0)
         if self.start_mode == "on_path":
@@ -236,20 +268,32 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         q = np.asarray(options.get("q", q), dtype=np.float64)
         qd = np.asarray(options.get("qd", qd), dtype=np.float64)
         self.arm.reset_state(q, qd)  # validates shapes and finiteness
-        self._s0, self._t = s0, 0.0
+        self._s0, self._steps = s0, 0
         self._q, self._qd = self.arm.state()
+        self.disturbances.reset(dist_rng, self.disturbance_context)
+        self._apply_plant_changes()
+        self._dist_tau = np.zeros(self.n)
+        self._dist_work = 0.0
+        self._q_meas, self._qd_meas = self.disturbances.sense(self._q, self._qd)
         obs, info = self._observe(np.zeros(self.n), np.zeros(self.n), unstable=False)
         return obs, info
 
+    def _apply_plant_changes(self) -> None:
+        changes = self.disturbances.plant(self.t)
+        self.arm.set_mass_changes({k: (v.scale, v.added_kg) for k, v in changes.items()})
+
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         a = self._validate_action(action)
-        tau = a * self.torque_limits_nm
-        forces = self.arm.clip_torque(tau).tolist()  # a is validated and clipped already
-        for _ in range(self.substeps):
-            self.arm.apply_torque_list(forces)
-            self.sim.step()
-        self._t += self.dt
-        q, qd = self.arm.state()
+        tau = a * self.torque_limits_nm  # within limits: a is validated and clipped
+        if self.disturbances.items:
+            q, qd = self._disturbed_substeps(tau)
+        else:
+            forces = tau.tolist()
+            for _ in range(self.substeps):
+                self.arm.apply_torque_list(forces)
+                self.sim.step()
+            q, qd = self.arm.state()
+        self._steps += 1
         unstable = not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))) or bool(
             np.max(np.abs(qd)) > self.max_speed
         )
@@ -257,12 +301,43 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             q = np.nan_to_num(q, nan=0.0, posinf=0.0, neginf=0.0)
             qd = np.clip(np.nan_to_num(qd, nan=0.0), -self.max_speed, self.max_speed)
         self._q, self._qd = q, qd
+        self._q_meas, self._qd_meas = self.disturbances.sense(q, qd)
         obs, info = self._observe(a, tau, unstable)
         if unstable:
             reward = -self.unstable_penalty
         else:
             reward = info["reward_path"] + info["reward_time"] + info["reward_effort"]
         return obs, float(reward), unstable, False, info
+
+    def _disturbed_substeps(self, tau_cmd: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Physics sub-steps with disturbances; returns the new true (q, q̇).
+
+        Per sub-step k starting at t_k: τ_d = (actuated − commanded torque) + Σ joint
+        torques + Σ Jᵀ(q_k) F for pushes; the plant gets τ_cmd + that; the ledger adds
+        τ_dᵀ (q_{k+1} − q_k), the exact work of a torque held over a semi-implicit Euler step.
+        """
+        self._apply_plant_changes()
+        dist = self.disturbances
+        tau_act = dist.actuate(tau_cmd)
+        actuation_error = tau_act - tau_cmd
+        q, qd = self._q, self._qd
+        for k in range(self.substeps):
+            t_k = (self._steps * self.substeps + k) * self.physics_dt
+            tau_d = actuation_error.copy()
+            joint = dist.joint_torque(t_k, q, qd)
+            if joint is not None:
+                tau_d = tau_d + joint
+            self.arm.apply_torque_list((tau_cmd + tau_d).tolist())
+            for link, force in dist.wrenches(t_k):
+                self.arm.apply_link_force(link, force)
+                tau_d = tau_d + self.model.com_jacobian(link, q).T @ force
+            self.sim.step()
+            q_next, qd = self.arm.state()
+            if np.all(np.isfinite(q_next)):
+                self._dist_work += float(tau_d @ (q_next - q))
+            q = q_next
+            self._dist_tau = tau_d
+        return q, qd
 
     def _validate_action(self, action: np.ndarray) -> FloatArray:
         a = np.asarray(action, dtype=np.float64)
@@ -280,18 +355,21 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         self, a: FloatArray, tau: FloatArray, unstable: bool
     ) -> tuple[np.ndarray, dict[str, Any]]:
         q, qd = self._q, self._qd
-        s_ref = self._s0 + self._t
+        qm, qdm = self._q_meas, self._qd_meas  # what the sensors report
+        s_ref = self._s0 + self.t
         q_ref, qd_ref, _ = self.path.evaluate(s_ref)
-        e, ed = q_ref - q, qd_ref - qd
+        e = q_ref - q
         omega = 2.0 * np.pi * s_ref / self.path.period_s
-        obs = np.concatenate([q, qd, q_ref, qd_ref, e, ed, [math.sin(omega), math.cos(omega)]])
+        obs = np.concatenate(
+            [qm, qdm, q_ref, qd_ref, q_ref - qm, qd_ref - qdm, [math.sin(omega), math.cos(omega)]]
+        )
         # np.minimum/maximum: same result as np.clip, a few µs cheaper on small arrays.
         obs = np.minimum(np.maximum(obs, self._obs_low64), self._obs_high64).astype(np.float32)
         near = self.tables.nearest(q)
         w_path, w_time, w_effort = self.reward_weights
         e2 = float(e @ e)
         info = {
-            "t_s": self._t,
+            "t_s": self.t,
             "s_ref": s_ref,
             "path_distance": near.distance,
             "path_s": near.s,
@@ -301,6 +379,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             "reward_path": -w_path * near.distance**2,
             "reward_time": -w_time * e2,
             "reward_effort": -w_effort * float(a @ a) / self.n,
+            "disturbance_torque_nm": self._dist_tau.copy(),
+            "disturbance_work_j": self._dist_work,
             "unstable": unstable,
         }
         return obs, info
@@ -308,8 +388,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
     # -- state access for controllers and tests --------------------------------------
     @property
     def t(self) -> float:
-        """Episode time (s)."""
-        return self._t
+        """Episode time (s): control steps taken times dt."""
+        return self._steps * self.dt
 
     @property
     def s0(self) -> float:
@@ -317,8 +397,17 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._s0
 
     def joint_state(self) -> tuple[FloatArray, FloatArray]:
-        """Current (q, q̇) of the plant (rad, rad/s), copies."""
+        """Current true (q, q̇) of the plant (rad, rad/s), copies."""
         return self._q.copy(), self._qd.copy()
+
+    def measured_joint_state(self) -> tuple[FloatArray, FloatArray]:
+        """Current (q, q̇) as the sensors report it (noise, delay), float64 copies: what
+        the observation holds and what controllers should use."""
+        return np.array(self._q_meas, dtype=np.float64), np.array(self._qd_meas, dtype=np.float64)
+
+    def disturbance_schedule(self) -> list[dict[str, Any]]:
+        """This episode's drawn disturbance parameters, one dict per disturbance."""
+        return self.disturbances.schedules()
 
     # -- rendering and lifetime ------------------------------------------------------
     def render(self) -> np.ndarray | None:
@@ -368,10 +457,13 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             "np_random": self._np_random,
             "np_random_seed": self._np_random_seed,
             "env_spec": self.spec,
-            "t": self._t,
+            "steps": self._steps,
             "s0": self._s0,
             "q": self._q.copy(),
             "qd": self._qd.copy(),
+            "measured": (self._q_meas, self._qd_meas),
+            "disturbances": self.disturbances,
+            "ledger": (self._dist_tau.copy(), self._dist_work),
         }
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -379,6 +471,10 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         self._np_random = state["np_random"]
         self._np_random_seed = state["np_random_seed"]
         self.spec = state["env_spec"]
-        self._t, self._s0 = state["t"], state["s0"]
+        self._steps, self._s0 = state["steps"], state["s0"]
         self.arm.reset_state(state["q"], state["qd"])
         self._q, self._qd = self.arm.state()
+        self._q_meas, self._qd_meas = state["measured"]
+        self.disturbances = state["disturbances"]
+        self._dist_tau, self._dist_work = state["ledger"]
+        self._apply_plant_changes()

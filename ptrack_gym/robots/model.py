@@ -83,6 +83,10 @@ class BulletModel:
         coms = self._arm.link_coms(q)  # (L, 3)
         return float(self.gravity_mps2 * (self._masses @ coms[:, 2]))
 
+    def com_jacobian(self, link_name: str, q: FloatArray) -> FloatArray:
+        """Translational Jacobian (m/rad) of a link's centre of mass at q, shape (3, n)."""
+        return self._arm.com_jacobian(link_name, q)
+
     def kinetic_energy(self, q: FloatArray, qd: FloatArray) -> float:
         """½ q̇ᵀ M(q) q̇ (J)."""
         return 0.5 * float(qd @ self._arm.mass_matrix(q) @ qd)
