@@ -29,6 +29,15 @@ import numpy as np
 from agents.base import Controller, FloatArray
 
 
+def torque_to_action(tau_nm: FloatArray, torque_limits_nm: FloatArray) -> np.ndarray:
+    """The env action that applies torque τ (N·m): a = clip(τ / τ_max, −1, 1) as float32.
+
+    Every adapter (standalone or residual) converts through this one function, so equal
+    torques give bit-identical actions.
+    """
+    return np.clip(tau_nm / torque_limits_nm, -1.0, 1.0).astype(np.float32)
+
+
 class ControllerPolicy:
     """Adapter: a controller driving one ptrack env, with SB3's ``predict`` signature.
 
@@ -82,8 +91,7 @@ class ControllerPolicy:
 
     def action(self, observation: np.ndarray) -> np.ndarray:
         """One control step as a normalized action, a = clip(τ / τ_max, −1, 1), float32."""
-        tau = self.torque(observation)
-        return np.clip(tau / self.torque_limits_nm, -1.0, 1.0).astype(np.float32)
+        return torque_to_action(self.torque(observation), self.torque_limits_nm)
 
     def predict(
         self,
