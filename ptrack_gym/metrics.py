@@ -1,0 +1,159 @@
+"""Tracking metrics on recorded trajectories, for every controller alike.
+
+A controller that tracks the path up to a time offset (the passivity controller) must be
+judged by its distance to the path, not only by the time-indexed error; these functions
+compute both kinds, and the quantities that tell them apart (phase offset, speed ratio).
+
+All functions are pure: arrays in, numbers out (SI units; s in seconds of path time).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ptrack_gym.paths import PathTables
+from ptrack_gym.robots.model import RobotModel
+
+FloatArray = NDArray[np.float64]
+
+
+def path_distances(tables: PathTables, q: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """For each row of q (T, n): d_k = min_s |q_k − q_r(s)| (rad) and the minimising s_k."""
+    out = [tables.nearest(qk) for qk in np.asarray(q, dtype=np.float64)]
+    return np.array([o.distance for o in out]), np.array([o.s for o in out])
+
+
+def phase_offset(s_star: FloatArray, s_ref: FloatArray, period_s: float) -> FloatArray:
+    """Phase offset (s) of the nearest path point behind (−) or ahead (+) of the
+    time-indexed reference, wrapped to [−S/2, S/2)."""
+    d = np.asarray(s_star, dtype=np.float64) - np.asarray(s_ref, dtype=np.float64)
+    return (d + 0.5 * period_s) % period_s - 0.5 * period_s
+
+
+def speed_ratio(
+    model: RobotModel, tables: PathTables, q: FloatArray, qd: FloatArray, s_star: FloatArray
+) -> FloatArray:
+    """σ̇_k = sqrt(q̇ᵀ M(q) q̇ / M_r(s*_k)): the arm's speed relative to the path's nominal
+    speed at the nearest path point — the passivity controller's σ̇, defined for any run.
+    1 means moving at the reference's pace."""
+    out = np.empty(len(q))
+    for k, (qk, qdk, sk) in enumerate(zip(q, qd, s_star, strict=True)):
+        speed2 = float(qdk @ model.mass_matrix(qk) @ qdk)
+        out[k] = np.sqrt(max(speed2, 0.0) / tables(float(sk)).m_r)
+    return out
+
+
+def rms(x: FloatArray) -> float:
+    """Root mean square of a series (NaN for an empty one)."""
+    x = np.asarray(x, dtype=np.float64)
+    return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
+
+
+def recovery_time(
+    t_s: FloatArray, distance: FloatArray, t_end_s: float, threshold_rad: float
+) -> float:
+    """Time (s) from ``t_end_s`` (the end of a disturbance) until the path distance is back
+    below ``threshold_rad`` and stays there to the end of the record; NaN if it never does.
+    0 if it never left."""
+    t = np.asarray(t_s, dtype=np.float64)
+    d = np.asarray(distance, dtype=np.float64)
+    after = t >= t_end_s
+    if not np.any(after):
+        return float("nan")
+    above = np.flatnonzero(after & (d >= threshold_rad))
+    if above.size == 0:
+        return 0.0
+    last = above[-1]
+    if last == len(t) - 1:
+        return float("nan")
+    return float(t[last + 1] - t_end_s)
+
+
+@dataclass(frozen=True)
+class EpisodeRecord:
+    """What one episode recorded, one row per control step k (state after step k)."""
+
+    t_s: FloatArray  # (T,) time after the step
+    q: FloatArray  # (T, n) true joint positions (rad)
+    qd: FloatArray  # (T, n) true joint velocities (rad/s)
+    s_ref: FloatArray  # (T,) time-indexed reference phase (s)
+    tau_nm: FloatArray  # (T, n) torque applied by the controller during step k (N·m)
+    torque_limits_nm: FloatArray  # (n,)
+    disturbance_work_j: float  # ∫ q̇ᵀ τ_d over the episode (J)
+    unstable: bool
+    impulse_end_s: float | None = None  # end of the first impulse/push, if any
+
+
+def episode_metrics(
+    record: EpisodeRecord,
+    model: RobotModel,
+    tables: PathTables,
+    failure_distance_rad: float = 0.5,
+    recovery_threshold_rad: float = 1e-2,
+    settle_fraction: float = 0.5,
+) -> dict[str, float]:
+    """Every per-episode metric of the evaluation table.
+
+    * ``path_dist_rms/max/final`` — d = min_s |q − q_r(s)| (rad);
+    * ``time_err_rms`` — |q_r(s_ref) − q| (rad), the time-indexed error;
+    * ``speed_ratio_err`` — mean |σ̇ − 1| over the last ``settle_fraction`` of the episode;
+    * ``phase_offset_s`` — mean phase offset (s) over that window (see :func:`phase_offset`);
+    * ``recovery_s`` — :func:`recovery_time` after ``impulse_end_s`` (NaN without one);
+    * ``tau_rms_frac``, ``tau_peak_frac``, ``saturation_frac`` — effort relative to the
+      limits (fraction of steps with a joint at ≥ 99.9% of its limit);
+    * ``controller_work_j`` — Σ τ_kᵀ (q_{k+1} − q_k), ``disturbance_work_j``;
+    * ``failed`` — 1 if unstable or the path distance ever exceeded
+      ``failure_distance_rad`` (failed episodes are kept and counted, never dropped).
+    """
+    q, qd = record.q, record.qd
+    dist, s_star = path_distances(tables, q)
+    q_ref = tables.path.evaluate(record.s_ref)[0]
+    time_err = np.linalg.norm(q_ref - q, axis=1)
+    k0 = int(len(q) * (1.0 - settle_fraction))
+    ratio = speed_ratio(model, tables, q[k0:], qd[k0:], s_star[k0:])
+    offset = phase_offset(s_star[k0:], record.s_ref[k0:], tables.period_s)
+    frac = np.abs(record.tau_nm) / record.torque_limits_nm
+    dq = np.diff(q, axis=0)
+    work = float(np.sum(record.tau_nm[1:] * dq)) if len(q) > 1 else 0.0
+    recovery = (
+        recovery_time(record.t_s, dist, record.impulse_end_s, recovery_threshold_rad)
+        if record.impulse_end_s is not None
+        else float("nan")
+    )
+    failed = record.unstable or bool(np.max(dist) > failure_distance_rad)
+    return {
+        "path_dist_rms": rms(dist),
+        "path_dist_max": float(np.max(dist)),
+        "path_dist_final": float(dist[-1]),
+        "time_err_rms": rms(time_err),
+        "speed_ratio_err": float(np.mean(np.abs(ratio - 1.0))) if ratio.size else float("nan"),
+        "phase_offset_s": float(np.mean(offset)) if offset.size else float("nan"),
+        "recovery_s": recovery,
+        "tau_rms_frac": rms(frac),
+        "tau_peak_frac": float(np.max(frac)),
+        "saturation_frac": float(np.mean(np.any(frac >= 0.999, axis=1))),
+        "controller_work_j": work,
+        "disturbance_work_j": float(record.disturbance_work_j),
+        "failed": float(failed),
+    }
+
+
+METRIC_NAMES: Sequence[str] = (
+    "path_dist_rms",
+    "path_dist_max",
+    "path_dist_final",
+    "time_err_rms",
+    "speed_ratio_err",
+    "phase_offset_s",
+    "recovery_s",
+    "tau_rms_frac",
+    "tau_peak_frac",
+    "saturation_frac",
+    "controller_work_j",
+    "disturbance_work_j",
+    "failed",
+)
