@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml constraints.txt
 	touch $(STAMP)
 
 run: setup
-	$(PY) -m train.demo
+	$(PY) -m train.evaluate --config train/configs/main.yml --out results/main --no-progress
 
 lint: setup
 	$(PY) -m ruff check .
@@ -28,6 +28,7 @@ test: lint
 
 bench: setup
 	$(PY) bench/env_step.py
+	$(PY) bench/controller_cost.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache

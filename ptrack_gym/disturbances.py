@@ -134,32 +134,37 @@ def _check_fraction(value: float | tuple[float, float], name: str) -> None:
 
 @dataclass
 class ImpulseTorque(Disturbance):
-    """A joint-torque impulse: τ_d = a·τ_max ⊙ u for ``duration_s`` from the onset.
+    """A joint-torque impulse held for ``duration_s`` from an onset uniform in ``onset_s``.
 
-    u is a random unit vector (direction), the onset uniform in ``onset_s``. With
-    ``energy_j`` set, a is instead chosen so the impulse's momentum p = τ_d·duration gives
-    an arm at rest at the home pose the kinetic energy ½pᵀM⁻¹p = ``energy_j``.
+    Size, by precedence: ``energy_j`` — the impulse changes the velocity of an arm at rest
+    at home by c·v (v a random unit vector of joint velocities) with the kinetic energy
+    ½c²vᵀMv = energy_j, i.e. τ_d = c·M(q_home)v / duration; ``accel_rad_s2`` —
+    τ_d = M(q_home)(α u); otherwise τ_d = a·τ_max ⊙ u (``fraction``), u a random unit vector.
     """
 
     name: ClassVar[str] = "impulse"
     fraction: float = 0.5
     duration_s: float = 0.05
     onset_s: float | tuple[float, float] = (1.0, 4.0)
+    accel_rad_s2: float | None = None
     energy_j: float | None = None
 
     def __post_init__(self) -> None:
         _check_fraction(self.fraction, "fraction")
         if not self.duration_s > 0:
             raise InvalidConfigError(f"duration_s must be > 0, got {self.duration_s!r}")
+        if self.energy_j is not None:
+            _check_fraction(self.energy_j, "energy_j")
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._onset = _draw(rng, self.onset_s)
-        self._tau = self.fraction * ctx.torque_limits_nm * _unit(rng, ctx.n)
+        u = _unit(rng, ctx.n)
         if self.energy_j is not None:
-            p = _unit_like(self._tau) * self.duration_s
-            self._tau = _unit_like(self._tau) * _impulse_energy_scale(
-                p, ctx.home_mass_matrix, self.energy_j
-            )
+            mass = ctx.home_mass_matrix
+            c = np.sqrt(2.0 * self.energy_j / float(u @ mass @ u))
+            self._tau = c * (mass @ u) / self.duration_s
+        else:
+            self._tau = _torque_vector(self.fraction, self.accel_rad_s2, u, ctx)
 
     def joint_torque(self, t_s: float, q: FloatArray, qd: FloatArray) -> FloatArray | None:
         if self._onset <= t_s < self._onset + self.duration_s:
@@ -168,6 +173,16 @@ class ImpulseTorque(Disturbance):
 
     def schedule(self) -> dict[str, Any]:
         return {"onset_s": self._onset, "tau_nm": self._tau.copy(), "duration_s": self.duration_s}
+
+
+def _torque_vector(
+    fraction: float, accel: float | None, direction: FloatArray, ctx: DisturbanceContext
+) -> FloatArray:
+    """a·τ_max ⊙ u (``fraction``), or M(q_home)·(α u) with α = ``accel`` (rad/s²): the
+    inertia-scaled form gives every joint a comparable acceleration, light wrists included."""
+    if accel is not None:
+        return ctx.home_mass_matrix @ (accel * direction)
+    return fraction * ctx.torque_limits_nm * direction
 
 
 def _unit_like(v: FloatArray) -> FloatArray:
@@ -183,12 +198,14 @@ def _sustained_amplitude(ctx: DisturbanceContext, energy_j: float) -> float:
 
 @dataclass
 class StepTorque(Disturbance):
-    """A constant joint torque τ_d = a·τ_max ⊙ u from a random onset to the episode's end.
-    With ``energy_j``: |τ_d| = energy_j / (mean|q_r'| · horizon) (see module docs)."""
+    """A constant joint torque from a random onset to the episode's end: a·τ_max ⊙ u, or
+    M(q_home)(α u) with ``accel_rad_s2``; with ``energy_j``, |τ_d| = energy_j /
+    (mean|q_r'| · horizon), the most work it can do along the reference."""
 
     name: ClassVar[str] = "step"
     fraction: float = 0.1
     onset_s: float | tuple[float, float] = (1.0, 4.0)
+    accel_rad_s2: float | None = None
     energy_j: float | None = None
 
     def __post_init__(self) -> None:
@@ -196,7 +213,7 @@ class StepTorque(Disturbance):
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._onset = _draw(rng, self.onset_s)
-        self._tau = self.fraction * ctx.torque_limits_nm * _unit(rng, ctx.n)
+        self._tau = _torque_vector(self.fraction, self.accel_rad_s2, _unit(rng, ctx.n), ctx)
         if self.energy_j is not None:
             self._tau = _unit_like(self._tau) * _sustained_amplitude(ctx, self.energy_j)
 
@@ -209,13 +226,15 @@ class StepTorque(Disturbance):
 
 @dataclass
 class PeriodicTorque(Disturbance):
-    """τ_d,j(t) = A_j sin(2π f t + φ_j), A = a·τ_max ⊙ |u|, f drawn once per episode in
-    ``frequency_hz``, phases φ_j uniform in [0, 2π) once per episode (never redrawn).
-    With ``energy_j``: |A| = energy_j / (mean|q_r'| · horizon)."""
+    """τ_d,j(t) = A_j sin(2π f t + φ_j), A = a·τ_max ⊙ |u| (or |M(q_home) α|u|| with
+    ``accel_rad_s2``), f drawn once per episode in ``frequency_hz``, phases φ_j uniform in
+    [0, 2π) once per episode (never redrawn). With ``energy_j``: |A| = energy_j /
+    (mean|q_r'| · horizon)."""
 
     name: ClassVar[str] = "periodic"
     fraction: float = 0.1
     frequency_hz: float | tuple[float, float] = (0.5, 2.0)
+    accel_rad_s2: float | None = None
     energy_j: float | None = None
 
     def __post_init__(self) -> None:
@@ -224,7 +243,9 @@ class PeriodicTorque(Disturbance):
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._freq = _draw(rng, self.frequency_hz)
-        self._amp = self.fraction * ctx.torque_limits_nm * np.abs(_unit(rng, ctx.n))
+        self._amp = np.abs(
+            _torque_vector(self.fraction, self.accel_rad_s2, np.abs(_unit(rng, ctx.n)), ctx)
+        )
         self._phase = rng.uniform(0.0, 2.0 * np.pi, ctx.n)
         if self.energy_j is not None:
             self._amp = _unit_like(self._amp) * _sustained_amplitude(ctx, self.energy_j)
@@ -242,7 +263,8 @@ class PeriodicTorque(Disturbance):
 
 @dataclass
 class NoiseTorque(Disturbance):
-    """Random joint torque, std a·τ_max per joint, drawn every physics sub-step.
+    """Random joint torque, std a·τ_max per joint (or α·M_jj(q_home) with
+    ``accel_rad_s2``), drawn every physics sub-step.
 
     ``bandwidth_hz=None``: white (independent draws). Otherwise band-limited: a first-order
     low-pass (Ornstein–Uhlenbeck) process x ← ρx + √(1−ρ²)·σw, ρ = exp(−2π f_c dt), whose
@@ -251,6 +273,7 @@ class NoiseTorque(Disturbance):
     name: ClassVar[str] = "noise_torque"
     fraction: float = 0.05
     bandwidth_hz: float | None = 5.0
+    accel_rad_s2: float | None = None
 
     def __post_init__(self) -> None:
         _check_fraction(self.fraction, "fraction")
@@ -259,7 +282,11 @@ class NoiseTorque(Disturbance):
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._rng = rng
-        self._sigma = self.fraction * ctx.torque_limits_nm
+        self._sigma = (
+            self.fraction * ctx.torque_limits_nm
+            if self.accel_rad_s2 is None
+            else self.accel_rad_s2 * np.diag(ctx.home_mass_matrix)
+        )
         self._rho = (
             0.0
             if self.bandwidth_hz is None
@@ -346,32 +373,36 @@ class Payload(Disturbance):
 
 @dataclass
 class Mismatch(Disturbance):
-    """Plant ≠ model: every link's mass and inertia scaled by a factor drawn per episode in
-    ``mass_scale``; joint viscous damping d (N·m·s/rad) and Coulomb friction f_c (fraction
-    of τ_max) as explicit plant torques τ_d = −d q̇ − f_c τ_max tanh(q̇ / 0.01 rad/s)."""
+    """Plant ≠ model: every listed link's mass and inertia scaled by a factor drawn per
+    episode in ``mass_scale``; joint viscous damping and Coulomb friction as explicit plant
+    torques τ_d,j = −β M_jj q̇_j − a_f M_jj tanh(q̇_j / 0.1 rad/s), M_jj = M_jj(q_home): per
+    unit of joint inertia (β in 1/s, a_f in rad/s²), so light wrists are not over-damped
+    and the explicit scheme stays stable (a_f < 0.1 rad/s / dt)."""
 
     name: ClassVar[str] = "mismatch"
     mass_scale: float | tuple[float, float] = (0.8, 1.2)
-    damping_nms: float = 0.0
-    friction_fraction: float = 0.0
+    damping_per_s: float = 0.0
+    friction_rad_s2: float = 0.0
     links: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         _check_fraction(self.mass_scale, "mass_scale")
-        _check_fraction(self.damping_nms, "damping_nms")
-        _check_fraction(self.friction_fraction, "friction_fraction")
+        _check_fraction(self.damping_per_s, "damping_per_s")
+        _check_fraction(self.friction_rad_s2, "friction_rad_s2")
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._scales = {link: _draw(rng, self.mass_scale) for link in self.links}
-        self._friction = self.friction_fraction * ctx.torque_limits_nm
+        inertia = np.diag(ctx.home_mass_matrix)
+        self._damping = self.damping_per_s * inertia
+        self._friction = self.friction_rad_s2 * inertia
 
     def plant(self, t_s: float) -> dict[str, MassChange] | None:
         return {link: MassChange(scale=s) for link, s in self._scales.items()}
 
     def joint_torque(self, t_s: float, q: FloatArray, qd: FloatArray) -> FloatArray | None:
-        if self.damping_nms == 0.0 and not np.any(self._friction):
+        if self.damping_per_s == 0.0 and self.friction_rad_s2 == 0.0:
             return None
-        return -self.damping_nms * qd - self._friction * np.tanh(qd / 0.01)
+        return -self._damping * qd - self._friction * np.tanh(qd / 0.1)
 
     def schedule(self) -> dict[str, Any]:
         return {"mass_scales": dict(self._scales)}
@@ -379,17 +410,23 @@ class Mismatch(Disturbance):
 
 @dataclass
 class ActionNoise(Disturbance):
-    """Actuation noise: the actuators produce τ + a·τ_max ⊙ w, w standard normal per
-    control step (held over the sub-steps)."""
+    """Actuation noise: the actuators produce τ + σ ⊙ w, σ = a·τ_max (or α·M_jj(q_home)
+    with ``accel_rad_s2``), w standard normal per control step (held over the sub-steps)."""
 
     name: ClassVar[str] = "action_noise"
     fraction: float = 0.02
+    accel_rad_s2: float | None = None
 
     def __post_init__(self) -> None:
         _check_fraction(self.fraction, "fraction")
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
-        self._rng, self._sigma = rng, self.fraction * ctx.torque_limits_nm
+        self._rng = rng
+        self._sigma = (
+            self.fraction * ctx.torque_limits_nm
+            if self.accel_rad_s2 is None
+            else self.accel_rad_s2 * np.diag(ctx.home_mass_matrix)
+        )
 
     def actuate(self, tau_nm: FloatArray) -> FloatArray:
         return tau_nm + self._sigma * self._rng.standard_normal(tau_nm.shape[0])
@@ -459,15 +496,23 @@ DISTURBANCES: dict[str, type[Disturbance]] = {
 
 # -- presets -----------------------------------------------------------------------
 
-#: Per-robot scales of the presets: push force (N), payload mass (kg), links for mismatch.
+#: Per-robot scales of the presets: impulse energy (J), push force (N), payload mass (kg),
+#: links scaled by the mismatch preset.
 ROBOT_SCALES: dict[str, dict[str, Any]] = {
-    "two_link": {"push_n": 10.0, "payload_kg": 0.5, "links": ("link1", "link2")},
+    "two_link": {
+        "impulse_j": 0.3,
+        "push_n": 10.0,
+        "payload_kg": 0.5,
+        "links": ("link1", "link2"),
+    },
     "iiwa": {
+        "impulse_j": 1.0,
         "push_n": 40.0,
         "payload_kg": 2.0,
         "links": tuple(f"lbr_iiwa_link_{i}" for i in range(1, 8)),
     },
     "panda": {
+        "impulse_j": 1.0,
         "push_n": 20.0,
         "payload_kg": 1.0,
         "links": tuple(f"panda_link{i}" for i in range(1, 8)),
@@ -476,25 +521,34 @@ ROBOT_SCALES: dict[str, dict[str, Any]] = {
 
 
 def _preset_specs(name: str, level: float, robot: str) -> list[dict[str, Any]]:
-    """The specs of preset ``name`` at ``level`` (0 none, 1 nominal) for ``robot``."""
+    """The specs of preset ``name`` at ``level`` (0 none, 1 nominal) for ``robot``.
+
+    Torque magnitudes are inertia-scaled (``accel_rad_s2``) or energy-based, so a level
+    means a comparable push on every joint of every robot: at level 1, an impulse gives the
+    arm at rest the robot's ``impulse_j`` of kinetic energy in 50 ms; a periodic torque
+    accelerates each joint by up to 2 rad/s²; the noise preset adds sensor noise (1 mrad,
+    10 mrad/s), actuation noise (1 rad/s² per joint inertia) and a 5 Hz band-limited
+    torque (1 rad/s²); a payload of ``payload_kg`` is picked up between 1 and 4 s; the
+    mismatch preset scales link masses by ±20%, with damping 0.5/s and friction 0.5 rad/s².
+    """
     sc = ROBOT_SCALES[robot]
     specs: dict[str, list[dict[str, Any]]] = {
         "none": [],
-        "impulse": [{"type": "impulse", "fraction": 0.5 * level, "duration_s": 0.05}],
+        "impulse": [{"type": "impulse", "energy_j": sc["impulse_j"] * level, "duration_s": 0.05}],
         "push": [{"type": "push", "force_n": sc["push_n"] * level, "duration_s": 0.1}],
-        "periodic": [{"type": "periodic", "fraction": 0.1 * level}],
+        "periodic": [{"type": "periodic", "accel_rad_s2": 2.0 * level}],
         "noise": [
             {"type": "observation_noise", "q_std_rad": 1e-3 * level, "qd_std_rad_s": 1e-2 * level},
-            {"type": "action_noise", "fraction": 0.02 * level},
-            {"type": "noise_torque", "fraction": 0.05 * level, "bandwidth_hz": 5.0},
+            {"type": "action_noise", "accel_rad_s2": 1.0 * level},
+            {"type": "noise_torque", "accel_rad_s2": 1.0 * level, "bandwidth_hz": 5.0},
         ],
         "payload": [{"type": "payload", "mass_kg": sc["payload_kg"] * level, "pick_s": (1.0, 4.0)}],
         "mismatch": [
             {
                 "type": "mismatch",
                 "mass_scale": (1.0 - 0.2 * level, 1.0 + 0.2 * level),
-                "damping_nms": 0.05 * level,
-                "friction_fraction": 0.005 * level,
+                "damping_per_s": 0.5 * level,
+                "friction_rad_s2": 0.5 * level,
                 "links": sc["links"],
             }
         ],
@@ -579,6 +633,7 @@ def build_disturbances(
                         f"preset {name!r} takes no energy budget; those that do: {_ENERGY_PRESETS}"
                     )
                 for s in _preset_specs(name, 1.0, robot):
+                    s = {k: v for k, v in s.items() if k not in ("fraction", "accel_rad_s2")}
                     out.append(_from_spec({**s, "energy_j": float(arg["energy_j"])}))
             else:
                 level = float(arg)

@@ -1,0 +1,163 @@
+"""The evaluation harness: a tiny sweep end to end, resume, workers, Ray, pairing, and
+the refusal of corrupt results files and bad configs."""
+
+from __future__ import annotations
+
+import shutil
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+import pytest
+
+import ptrack_gym  # noqa: F401
+from agents.factory import make_controller
+from agents.policy import ControllerPolicy
+from ptrack_gym.errors import InvalidConfigError
+from train.evaluate import load_config, main, run_sweep
+from train.results import COLUMNS, CorruptResultsError, read_episodes
+
+TINY = [
+    "env_id=ptrack_gym/TwoLinkTrack-v0",
+    "controllers=[computed_torque, passivity]",
+    "disturbances=[none, impulse]",
+    "levels=[1.0]",
+    "seeds=2",
+    "episode_s=0.4",
+    "bootstrap_resamples=200",
+    "reference=computed_torque",
+]
+
+
+def tiny(tmp_path, name, *extra):
+    return load_config(None, [*TINY, f"out={tmp_path / name}", *extra])
+
+
+def numbers(path):
+    df = pd.read_csv(path).drop(columns=["wall_s"])
+    return df.sort_values(["controller", "disturbance", "level", "seed", "episode"]).reset_index(
+        drop=True
+    )
+
+
+@pytest.fixture(scope="module")
+def full_run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("eval")
+    out = run_sweep(tiny(tmp, "full", "workers=1"), progress=False)
+    return out
+
+
+def test_tiny_sweep_writes_tables_provenance_and_plots(full_run) -> None:
+    out = full_run
+    df = pd.read_csv(out / "episodes.csv")
+    assert list(df.columns) == list(COLUMNS)
+    # 2 controllers × (none + impulse@1) × 2 seeds × 1 episode
+    assert len(df) == 8
+    assert set(df["controller"]) == {"computed_torque", "passivity"}
+    assert df["path_dist_rms"].notna().all() and (df["steps"] == 400).all()
+    summary = pd.read_csv(out / "summary.csv")
+    assert len(summary) == 4
+    assert {"path_dist_rms_mean", "mean_ci_low", "failure_rate", "diff_vs_computed_torque"} <= set(
+        summary.columns
+    )
+    ref = summary[summary["controller"] == "computed_torque"]
+    assert (ref["diff_vs_computed_torque"] == 0.0).all()
+    for name in (
+        "config.yml",
+        "command.txt",
+        "summary.md",
+        "robustness_path_dist_rms.png",
+        "failures.png",
+        "example_passivity.png",
+        "example_computed_torque.png",
+    ):
+        assert (out / name).stat().st_size > 0, name
+
+
+def test_resume_completes_without_duplicates(full_run, tmp_path) -> None:
+    out = tmp_path / "resumed"
+    shutil.copytree(full_run, out)
+    lines = (out / "episodes.csv").read_text().splitlines(keepends=True)
+    (out / "episodes.csv").write_text("".join(lines[:4]))  # header + 3 episodes: "interrupted"
+    with pytest.raises(InvalidConfigError, match="--resume"):
+        run_sweep(tiny(tmp_path, "resumed", "workers=1"), progress=False)
+    run_sweep(tiny(tmp_path, "resumed", "workers=1"), resume=True, progress=False)
+    rows = read_episodes(out / "episodes.csv")
+    assert len(rows) == 8
+    pd.testing.assert_frame_equal(numbers(out / "episodes.csv"), numbers(full_run / "episodes.csv"))
+
+
+def test_two_workers_give_the_same_numbers(full_run, tmp_path) -> None:
+    out = run_sweep(tiny(tmp_path, "two", "workers=2"), progress=False)
+    pd.testing.assert_frame_equal(numbers(out / "episodes.csv"), numbers(full_run / "episodes.csv"))
+
+
+def test_ray_backend_gives_the_same_rows(full_run, tmp_path) -> None:
+    pytest.importorskip("ray")
+    out = run_sweep(
+        tiny(tmp_path, "ray", "workers=2", "backend=ray", "plots=false"), progress=False
+    )
+    pd.testing.assert_frame_equal(numbers(out / "episodes.csv"), numbers(full_run / "episodes.csv"))
+
+
+@pytest.mark.parametrize(
+    ("mutate", "match"),
+    [
+        (lambda text: text[:-5], "incomplete"),
+        (lambda text: text.replace("controller,", "ctrl,", 1), "header"),
+        (lambda text: text + text.splitlines(keepends=True)[1], "twice"),
+        (lambda text: text + "a,b,c\n", "fields"),
+    ],
+    ids=["partial-line", "foreign-header", "duplicate", "short-row"],
+)
+def test_corrupt_results_are_refused(full_run, tmp_path, mutate, match) -> None:
+    out = tmp_path / "bad"
+    shutil.copytree(full_run, out)
+    path = out / "episodes.csv"
+    path.write_text(mutate(path.read_text()))
+    with pytest.raises(CorruptResultsError, match=match):
+        run_sweep(tiny(tmp_path, "bad", "workers=1"), resume=True, progress=False)
+
+
+@pytest.mark.parametrize(
+    "override",
+    [
+        "controllers=[magic]",
+        "disturbances=[hurricane]",
+        "levels=[-1]",
+        "bogus=1",
+        "backend=spark",
+        "reference=magic",
+        "seeds=0",
+    ],
+)
+def test_bad_config_is_refused_before_running(tmp_path, override, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(
+            ["--config", "train/configs/main.yml", "--set", override, "--out", str(tmp_path / "x")]
+        )
+    assert exc.value.code == 2
+    assert not (tmp_path / "x" / "episodes.csv").exists()
+
+
+def test_paired_controllers_meet_identical_disturbances() -> None:
+    """Same seed → the recorded disturbance torques are identical for two controllers."""
+    series = {}
+    for name in ("computed_torque", "pd_gravity"):
+        env = gym.make(
+            "ptrack_gym/TwoLinkTrack-v0",
+            disturbance=["impulse", "periodic"],
+            max_episode_steps=2500,
+        )
+        policy = ControllerPolicy(env, make_controller(name, env))
+        obs, _ = env.reset(seed=7)
+        taus = []
+        for _ in range(2500):
+            obs, _, _terminated, _truncated, info = env.step(policy.predict(obs)[0])
+            taus.append(info["disturbance_torque_nm"])
+        series[name] = (np.array(taus), env.unwrapped.disturbance_schedule())
+        env.close()
+    (a, sched_a), (b, sched_b) = series.values()
+    np.testing.assert_array_equal(a, b)
+    assert np.abs(a).max() > 0
+    assert str(sched_a) == str(sched_b)

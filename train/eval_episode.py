@@ -1,0 +1,165 @@
+"""One evaluation episode: a controller on an env under one disturbance, with one seed.
+
+This is what a worker process runs. It needs nothing from the parent but a
+:class:`Task` and the :class:`EpisodeSettings`, so the process and Ray backends run the
+same function and give the same rows.
+
+Pairing: the env's reset seed depends only on (seed, episode), never on the controller,
+so every controller meets the same start state and — through the env's own disturbance
+stream — the same disturbance schedule.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+import ptrack_gym  # noqa: F401  (registers the envs)
+from agents.factory import make_controller
+from agents.policy import ControllerPolicy
+from ptrack_gym.metrics import EpisodeRecord, episode_metrics
+
+#: Columns identifying an episode, in the CSV's order.
+KEY_COLUMNS: tuple[str, ...] = ("controller", "disturbance", "level", "seed", "episode")
+
+
+@dataclass(frozen=True)
+class EpisodeSettings:
+    """Settings shared by every episode of a sweep (see ``train/configs/*.yml``)."""
+
+    env_id: str
+    episode_s: float
+    control_hz: float
+    start: str
+    failure_distance_rad: float
+    recovery_threshold_rad: float
+
+
+@dataclass(frozen=True)
+class Task:
+    """One episode to run: who, under what, with which seed."""
+
+    controller: str
+    disturbance: str
+    level: float
+    seed: int
+    episode: int
+
+    def key(self) -> tuple[str, str, str, str, str]:
+        """The CSV key of this task (strings, as read back from the CSV)."""
+        return (
+            self.controller,
+            self.disturbance,
+            f"{self.level:g}",
+            str(self.seed),
+            str(self.episode),
+        )
+
+    @property
+    def reset_seed(self) -> int:
+        """The env reset seed: a function of (seed, episode) only — the pairing."""
+        return 10_000 * self.seed + self.episode
+
+
+_ENV_CACHE: dict[tuple[Any, ...], gym.Env[Any, Any]] = {}
+
+
+def _env(settings: EpisodeSettings, disturbance: str, level: float) -> gym.Env[Any, Any]:
+    """A per-process cache of envs (building path tables costs ~0.2 s)."""
+    key = (settings, disturbance, level)
+    if key not in _ENV_CACHE:
+        steps = round(settings.episode_s * settings.control_hz)
+        _ENV_CACHE[key] = gym.make(
+            settings.env_id,
+            control_hz=settings.control_hz,
+            start=settings.start,
+            disturbance=None if disturbance == "none" else (disturbance, level),
+            horizon_s=settings.episode_s,
+            max_episode_steps=steps,
+        )
+    return _ENV_CACHE[key]
+
+
+def _first_impulse_end(schedule: list[dict[str, Any]]) -> float | None:
+    ends = [d["onset_s"] + d["duration_s"] for d in schedule if d["type"] in ("impulse", "push")]
+    return min(ends) if ends else None
+
+
+def run_episode(
+    task: Task, settings: EpisodeSettings, keep_trace: bool = False
+) -> tuple[dict[str, Any], dict[str, np.ndarray] | None]:
+    """Run ``task`` and return its CSV row (keys + metrics + wall time) and, with
+    ``keep_trace``, the time series for the example-episode plots."""
+    wall0 = time.perf_counter()
+    env = _env(settings, task.disturbance, task.level)
+    u = env.unwrapped
+    controller = make_controller(task.controller, env)
+    policy = ControllerPolicy(env, controller)
+    obs, _ = env.reset(seed=task.reset_seed)
+    policy.reset_controller(obs)
+    rows: dict[str, list[Any]] = {k: [] for k in ("t", "q", "qd", "s_ref", "tau", "d", "energy")}
+    unstable, info = False, {}
+    while True:
+        action = policy.action(obs)
+        obs, _, terminated, truncated, info = env.step(action)
+        q, qd = u.joint_state()
+        rows["t"].append(info["t_s"])
+        rows["q"].append(q)
+        rows["qd"].append(qd)
+        rows["s_ref"].append(info["s_ref"])
+        rows["tau"].append(info["tau_nm"])
+        if keep_trace:
+            rows["d"].append(info["path_distance"])
+            diag = policy.last_diagnostics
+            rows["energy"].append(
+                [
+                    diag.get("h_plus_w", np.nan),
+                    diag.get("h_r", np.nan),
+                    diag.get("phi", np.nan),
+                    diag.get("psi", np.nan),
+                    diag.get("energy", np.nan),
+                    info["energy_j"],
+                ]
+            )
+        if terminated or truncated:
+            unstable = bool(info["unstable"])
+            break
+    record = EpisodeRecord(
+        t_s=np.array(rows["t"]),
+        q=np.array(rows["q"]),
+        qd=np.array(rows["qd"]),
+        s_ref=np.array(rows["s_ref"]),
+        tau_nm=np.array(rows["tau"]),
+        torque_limits_nm=u.torque_limits_nm,
+        disturbance_work_j=float(info["disturbance_work_j"]),
+        unstable=unstable,
+        impulse_end_s=_first_impulse_end(u.disturbance_schedule()),
+    )
+    metrics = episode_metrics(
+        record,
+        u.model,
+        u.tables,
+        failure_distance_rad=settings.failure_distance_rad,
+        recovery_threshold_rad=settings.recovery_threshold_rad,
+    )
+    row = {
+        **asdict(task),
+        **metrics,
+        "steps": len(record.t_s),
+        "wall_s": time.perf_counter() - wall0,
+    }
+    row["level"] = f"{task.level:g}"
+    trace = None
+    if keep_trace:
+        trace = {
+            "t_s": record.t_s,
+            "q": record.q,
+            "q_ref": u.path.evaluate(record.s_ref)[0],
+            "path_distance": np.array(rows["d"]),
+            "energy": np.array(rows["energy"]),  # H+W_r(σ), H_r, φ, ψ, E (passivity), H
+        }
+    return row, trace

@@ -1,0 +1,210 @@
+"""Results files of an evaluation sweep: the tidy per-episode table and its summary.
+
+``episodes.csv`` gets one row per finished episode, appended and flushed to disk as soon
+as the episode finishes, so an interrupted sweep loses at most the episodes in flight.
+:func:`read_episodes` validates the file before a resume and refuses, with the line
+number, a file with a foreign header, a row with the wrong number of fields, a truncated
+last line or a duplicated episode.
+
+:func:`summarize` aggregates per controller × disturbance × level: mean and interquartile
+mean (IQM) with 95% bootstrap confidence intervals (``scipy.stats.bootstrap``, percentile
+method, seeded), the failure rate, and the paired difference to a reference controller
+(per (seed, episode) pair, same disturbance schedule) with its interval. Failed episodes
+are counted in the failure rate and kept in every mean — never dropped.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from ptrack_gym.errors import PtrackError
+from ptrack_gym.metrics import METRIC_NAMES
+from train.eval_episode import KEY_COLUMNS
+
+COLUMNS: tuple[str, ...] = (*KEY_COLUMNS, *METRIC_NAMES, "steps", "wall_s")
+
+
+class CorruptResultsError(PtrackError, ValueError):
+    """A results file that cannot be resumed from safely."""
+
+
+def read_episodes(path: Path) -> list[dict[str, str]]:
+    """The rows of an ``episodes.csv``, validated (see the module docstring)."""
+    if not path.exists():
+        return []
+    text = path.read_text()
+    if text and not text.endswith("\n"):
+        raise CorruptResultsError(
+            f"{path}: the last line is incomplete (the sweep was killed mid-write?); "
+            f"delete that line or the file to resume"
+        )
+    rows = list(csv.reader(text.splitlines()))
+    if not rows:
+        return []
+    if tuple(rows[0]) != COLUMNS:
+        raise CorruptResultsError(f"{path}: header {rows[0]} is not the expected {list(COLUMNS)}")
+    out, seen = [], set()
+    for lineno, fields in enumerate(rows[1:], start=2):
+        if len(fields) != len(COLUMNS):
+            raise CorruptResultsError(
+                f"{path}, line {lineno}: {len(fields)} fields, expected {len(COLUMNS)}"
+            )
+        row = dict(zip(COLUMNS, fields, strict=True))
+        key = tuple(row[k] for k in KEY_COLUMNS)
+        if key in seen:
+            raise CorruptResultsError(f"{path}, line {lineno}: episode {key} appears twice")
+        seen.add(key)
+        out.append(row)
+    return out
+
+
+class EpisodeWriter:
+    """Appends rows to ``episodes.csv`` (header first if the file is new), each one
+    flushed and fsynced before :meth:`write` returns."""
+
+    def __init__(self, path: Path) -> None:
+        new = not path.exists() or path.stat().st_size == 0
+        self._file = path.open("a", newline="")
+        self._writer = csv.DictWriter(self._file, fieldnames=list(COLUMNS), extrasaction="raise")
+        if new:
+            self._writer.writeheader()
+            self._flush()
+
+    def _flush(self) -> None:
+        self._file.flush()
+        os.fsync(self._file.fileno())
+
+    def write(self, row: dict[str, Any]) -> None:
+        self._writer.writerow({k: _fmt(row[k]) for k in COLUMNS})
+        self._flush()
+
+    def close(self) -> None:
+        self._file.close()
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return repr(value)  # round-trips exactly
+    return str(value)
+
+
+def load_frame(path: Path) -> pd.DataFrame:
+    """``episodes.csv`` as a DataFrame with numeric metric columns."""
+    df = pd.DataFrame(read_episodes(path), columns=list(COLUMNS))
+    for col in (*METRIC_NAMES, "wall_s", "level"):
+        df[col] = df[col].astype(float)  # parses "nan" and repr() floats exactly
+    for col in ("steps", "seed", "episode"):
+        df[col] = df[col].astype(int)
+    return df
+
+
+def iqm(x: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Interquartile mean: the mean of the middle 50% (scipy's trim_mean at 25%)."""
+    return stats.trim_mean(x, 0.25, axis=axis)
+
+
+def _ci(values: np.ndarray, statistic: Any, resamples: int, seed: int) -> tuple[float, float]:
+    values = values[np.isfinite(values)]
+    if len(values) < 2 or np.ptp(values) == 0.0:
+        v = float(statistic(values)) if len(values) else float("nan")
+        return v, v
+    res = stats.bootstrap(
+        (values,),
+        statistic,
+        n_resamples=resamples,
+        confidence_level=0.95,
+        method="percentile",
+        vectorized=True,
+        rng=np.random.default_rng(seed),
+    )
+    return float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def summarize(
+    df: pd.DataFrame,
+    metric: str = "path_dist_rms",
+    reference: str | None = None,
+    resamples: int = 2000,
+    seed: int = 0,
+) -> pd.DataFrame:
+    """One row per controller × disturbance × level (see the module docstring)."""
+    out = []
+    groups = df.groupby(["controller", "disturbance", "level"], sort=True)
+    ref_rows = (
+        df[df["controller"] == reference].set_index(["disturbance", "level", "seed", "episode"])
+        if reference is not None
+        else None
+    )
+    for (ctrl, dist, level), g in groups:
+        x = g[metric].to_numpy(dtype=float)
+        mean_lo, mean_hi = _ci(x, np.mean, resamples, seed)
+        iqm_lo, iqm_hi = _ci(x, iqm, resamples, seed)
+        row: dict[str, Any] = {
+            "controller": ctrl,
+            "disturbance": dist,
+            "level": level,
+            "n": len(x),
+            "failure_rate": float(g["failed"].mean()),
+            f"{metric}_mean": float(np.mean(x)),
+            "mean_ci_low": mean_lo,
+            "mean_ci_high": mean_hi,
+            f"{metric}_iqm": float(iqm(x)),
+            "iqm_ci_low": iqm_lo,
+            "iqm_ci_high": iqm_hi,
+            "time_err_rms_mean": float(g["time_err_rms"].mean()),
+            "speed_ratio_err_mean": float(g["speed_ratio_err"].mean()),
+            "recovery_s_median": float(g["recovery_s"].median()),
+            "tau_rms_frac_mean": float(g["tau_rms_frac"].mean()),
+        }
+        if ref_rows is not None:
+            keyed = g.set_index(["disturbance", "level", "seed", "episode"])[metric]
+            common = keyed.index.intersection(ref_rows.index)
+            diff = keyed.loc[common].to_numpy(float) - ref_rows.loc[common, metric].to_numpy(float)
+            lo, hi = _ci(diff, np.mean, resamples, seed)
+            row.update(
+                {
+                    f"diff_vs_{reference}": float(np.mean(diff)) if len(diff) else float("nan"),
+                    "diff_ci_low": lo,
+                    "diff_ci_high": hi,
+                }
+            )
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def done_keys(rows: Iterable[dict[str, str]]) -> set[tuple[str, ...]]:
+    """The keys of finished episodes."""
+    return {tuple(r[k] for k in KEY_COLUMNS) for r in rows}
+
+
+def format_table(summary: pd.DataFrame, metric: str, columns: Sequence[str] | None = None) -> str:
+    """A compact markdown table of a summary (for the console and the README)."""
+    cols = columns or [
+        "controller",
+        "disturbance",
+        "level",
+        "n",
+        f"{metric}_mean",
+        "mean_ci_low",
+        "mean_ci_high",
+        f"{metric}_iqm",
+        "failure_rate",
+        "time_err_rms_mean",
+        "speed_ratio_err_mean",
+    ]
+    cols = [c for c in cols if c in summary.columns] + [
+        c for c in summary.columns if c.startswith("diff")
+    ]
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for _, r in summary.iterrows():
+        cells = [f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in cols]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
