@@ -43,7 +43,7 @@ def numbers(path):
 @pytest.fixture(scope="module")
 def full_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("eval")
-    out = run_sweep(tiny(tmp, "full", "workers=1"), progress=False)
+    out = run_sweep(tiny(tmp, "full", "workers=1", "video=true"), progress=False)
     return out
 
 
@@ -72,6 +72,8 @@ def test_tiny_sweep_writes_tables_provenance_and_plots(full_run) -> None:
         "example_computed_torque.png",
     ):
         assert (out / name).stat().st_size > 0, name
+    for ctrl in ("passivity", "computed_torque"):
+        assert (out / "videos" / ctrl / f"{ctrl}-episode-0.mp4").stat().st_size > 1000
 
 
 def test_resume_completes_without_duplicates(full_run, tmp_path) -> None:

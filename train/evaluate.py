@@ -9,7 +9,9 @@ state and disturbance schedule. Writes to ``--out``:
   appended as episodes finish; ``--resume`` skips the finished ones;
 * ``summary.csv`` — per controller × disturbance × level: mean and IQM of the main metric
   with 95% bootstrap intervals, failure rate, paired difference to the reference;
-* ``robustness_<metric>.png``, ``failures.png``, ``example_<controller>.png``.
+* ``robustness_<metric>.png``, ``failures.png``, ``example_<controller>.png``;
+* with ``--video``, ``videos/<controller>/<controller>-episode-0.mp4``: the example episode, recorded
+  through Gymnasium's ``RecordVideo`` (headless ``rgb_array``).
 
 Episodes run in ``--workers`` processes (default: the number of cores), or on Ray with
 ``--backend ray`` (``--ray-address`` for a cluster; a local instance by default).
@@ -97,6 +99,8 @@ class EvalConfig:
     """Output folder."""
     plots: bool = True
     """Write the PNG figures."""
+    video: bool = False
+    """Record one episode per controller as MP4 (``videos/``; needs the ``video`` extra)."""
 
     def validate(self) -> None:
         """Raise :class:`InvalidConfigError` naming the first bad field."""
@@ -301,6 +305,24 @@ def _finish(cfg: EvalConfig, out: Path) -> None:
                     f"{ctrl}: {cond[0]} level {cond[1]:g}, seed 0",
                     out / f"example_{ctrl}.png",
                 )
+    if cfg.video:
+        from train.video import record_episode
+
+        dist, level, seed, episode = _example_condition(cfg)
+        for ctrl in cfg.controllers:
+            record_episode(
+                cfg.env_id,
+                ctrl,
+                out / "videos" / ctrl,
+                seed=Task(ctrl, dist, level, seed, episode).reset_seed,
+                env_kwargs={
+                    "control_hz": cfg.control_hz,
+                    "start": cfg.start,
+                    "disturbance": None if dist == "none" else (dist, level),
+                    "horizon_s": cfg.episode_s,
+                    "max_episode_steps": round(cfg.episode_s * cfg.control_hz),
+                },
+            )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -320,9 +342,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--backend", choices=["process", "ray"])
     parser.add_argument("--ray-address", help="Ray cluster address")
     parser.add_argument("--resume", action="store_true", help="continue an interrupted sweep")
+    parser.add_argument("--video", action="store_true", help="record one MP4 per controller")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     overrides = list(args.set)
+    if args.video:
+        overrides.append("video=true")
     for name in ("out", "workers", "backend", "ray_address"):
         value = getattr(args, name)
         if value is not None:

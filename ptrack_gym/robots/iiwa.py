@@ -39,5 +39,5 @@ def iiwa() -> RobotSpec:
         path_amplitude_rad=(0.4, 0.3, 0.4, 0.3, 0.4, 0.3, 0.4),
         ee_link="lbr_iiwa_link_7",
         camera_target_m=(0.0, 0.0, 0.6),
-        camera_distance_m=2.2,
+        camera_distance_m=1.6,
     )

@@ -47,5 +47,5 @@ def panda() -> RobotSpec:
         path_amplitude_rad=(0.4, 0.3, 0.4, 0.3, 0.4, 0.3, 0.4),
         ee_link="panda_grasptarget",
         camera_target_m=(0.0, 0.0, 0.5),
-        camera_distance_m=2.0,
+        camera_distance_m=1.5,
     )

@@ -123,7 +123,7 @@ def two_link(params: TwoLinkParams | None = None) -> RobotSpec:
         path_amplitude_rad=(0.5, 0.6),
         ee_link="tip",
         camera_target_m=(0.3, 0.0, 0.0),
-        camera_distance_m=2.0,
+        camera_distance_m=1.4,
     )
 
 

@@ -1,0 +1,368 @@
+"""Residual reinforcement learning on top of a model-based controller.
+
+:class:`ResidualWrapper` turns a ptrack_gym env into one whose action is a *correction*
+to a base controller's torque:
+
+.. math::
+
+    \\tau = \\tau_{base}(q, \\dot q) + \\mathrm{scale} \\odot a, \\qquad a \\in [-1, 1]^n,
+
+with τ_base = ``controller.step(q, q̇, dt)`` on the env's measured joint state and
+``scale`` (N·m, per joint) a fraction of the torque limits (default 0.1). The inner env
+receives ``torque_to_action(τ, τ_max)`` — the one conversion every adapter uses — so with
+a = 0 the wrapped env is *bit-identical* to the base controller run standalone through
+:class:`~agents.policy.ControllerPolicy`. The controller is reset with every env reset,
+at the env's measured state and reference phase s₀ + t.
+
+Observation: the inner observation (6n + 2 entries, see ``TrackingEnv``), followed — with
+``include_controller_state=True`` — by a fixed-size float32 vector of the base
+controller's state, each entry clipped to documented finite bounds
+(:class:`ControllerFeatures`, ``feature_names``). Every entry is evaluated at the measured
+state the observation describes and at the controller's state after its last step — the
+state its *next* step starts from. Per controller (n joints, S the path period in s,
+v_max the env's speed bound in rad/s):
+
+``passivity`` — 6 + 2n entries
+
+=====================  ==========================================  ===============  ============
+entries                quantity                                    unit             bounds
+=====================  ==========================================  ===============  ============
+0, 1                   sin, cos of 2π s / S (the controller's s)   —                ±1
+2                      ṡ, the controller's path rate               1                ±10
+3                      σ̇ = √(q̇ᵀM(q)q̇ / M_r(s)), the speed ratio   1                [0, 10]
+4                      s̃ = s − σ                                   s                ±S
+5                      path error |q − q_r(s)|                     rad              [0, 2π]
+6 : 6 + n              q_r(s) − q per joint                        rad              ±2π
+6 + n : 6 + 2n         last τ_base / τ_max (0 after reset)         —                ±2
+=====================  ==========================================  ===============  ============
+
+``computed_torque``, ``pd_gravity`` — 3n entries; ``slotine_li`` — 4n entries. These
+controllers track the time-indexed reference q_r(s) with a clock s that equals the env's
+s₀ + t, so their errors repeat the inner observation's (in float64 before rounding); they
+are kept so every base has the same kind of block:
+
+=====================  ==========================================  ===============  ============
+entries                quantity                                    unit             bounds
+=====================  ==========================================  ===============  ============
+0 : n                  e = q_r(s) − q                              rad              ±2π
+n : 2n                 ė = q_r'(s) − q̇                             rad/s            ±2 v_max
+2n : 3n                last τ_base / τ_max (0 after reset)         —                ±2
+3n : 4n (Slotine–Li)   r = ė + Λ e                                 rad/s            ±r_max
+=====================  ==========================================  ===============  ============
+
+with r_max = 2 v_max + 2π max Λ. Any other :class:`~agents.base.Controller`: n entries,
+the last τ_base / τ_max.
+
+Info (every step): ``tau_base_nm`` τ_base, ``tau_residual_nm`` scale ⊙ clip(a, −1, 1)
+(N·m, before the env's own clipping of the sum to τ_max), ``controller`` the
+controller's ``diagnostics()``; reset's info has ``controller`` too.
+
+:func:`make_residual_env` is the one-call constructor: ``gym.make`` + the default-gain
+controller of :func:`agents.factory.make_controller` + the wrapper.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, SupportsFloat
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.envs.registration import EnvSpec
+
+from agents.base import Controller, FloatArray
+from agents.computed_torque import ComputedTorqueController
+from agents.factory import CONTROLLER_NAMES, make_controller
+from agents.passivity import PassivityController
+from agents.pd_gravity import PDGravityController
+from agents.policy import torque_to_action
+from agents.slotine_li import SlotineLiController
+from ptrack_gym.errors import InvalidActionError, InvalidConfigError
+
+#: Default residual authority: scale = 0.1 · τ_max per joint.
+DEFAULT_SCALE_FRACTION = 0.1
+#: Bound of the "last τ_base / τ_max" features: beyond ±2 only "saturated" matters.
+_BASE_RATIO_BOUND = 2.0
+_TWO_PI = 2.0 * math.pi
+
+
+class ControllerFeatures:
+    """A fixed-size, bounded feature vector of a controller's state (float64 before the
+    wrapper casts it to float32).
+
+    Attributes:
+        names: one name per entry.
+        low, high: finite bounds per entry; ``__call__`` clips to them.
+    """
+
+    def __init__(self, names: list[str], low: FloatArray, high: FloatArray) -> None:
+        self.names = tuple(names)
+        self.low = np.asarray(low, dtype=np.float64)
+        self.high = np.asarray(high, dtype=np.float64)
+
+    def raw(self, q: FloatArray, qd: FloatArray, base_ratio: FloatArray) -> FloatArray:
+        """The unclipped features; ``base_ratio`` is the last τ_base / τ_max, shape (n,)."""
+        return base_ratio
+
+    def __call__(self, q: FloatArray, qd: FloatArray, base_ratio: FloatArray) -> FloatArray:
+        """Features at measured (q, q̇) (rad, rad/s), clipped to [low, high]."""
+        x = self.raw(q, qd, base_ratio)
+        return np.minimum(np.maximum(np.nan_to_num(x), self.low), self.high)
+
+
+def _ratio_block(n: int) -> tuple[list[str], FloatArray]:
+    return [f"tau_base_ratio_{j}" for j in range(n)], np.full(n, _BASE_RATIO_BOUND)
+
+
+class PassivityFeatures(ControllerFeatures):
+    """Phase of s, ṡ, σ̇, s̃, path error and its vector, last τ_base / τ_max (6 + 2n)."""
+
+    def __init__(self, controller: PassivityController) -> None:
+        self.controller = controller
+        self.period_s = controller.tables.period_s
+        n = controller.n
+        ratio_names, ratio_high = _ratio_block(n)
+        names = [
+            "sin_phase_s",
+            "cos_phase_s",
+            "sd",
+            "sigma_dot",
+            "s_tilde_s",
+            "path_error_rad",
+            *[f"path_error_{j}_rad" for j in range(n)],
+            *ratio_names,
+        ]
+        high = np.concatenate(
+            [[1.0, 1.0, 10.0, 10.0, self.period_s, _TWO_PI], np.full(n, _TWO_PI), ratio_high]
+        )
+        low = -high
+        low[3] = 0.0  # σ̇ ≥ 0
+        low[5] = 0.0  # a distance
+        super().__init__(names, low, high)
+
+    def raw(self, q: FloatArray, qd: FloatArray, base_ratio: FloatArray) -> FloatArray:
+        """See the module table. σ̇ and the errors are at the current (q, q̇, s)."""
+        ctrl = self.controller
+        st = ctrl.state
+        ref = ctrl.tables(st.s)
+        speed2 = max(float(qd @ ctrl.model.mass_matrix(q) @ qd), 0.0)  # q̇ᵀMq̇ (J)
+        err = ref.q - q  # (n,) rad
+        omega = _TWO_PI * st.s / self.period_s
+        head = [
+            math.sin(omega),
+            math.cos(omega),
+            st.sd,
+            math.sqrt(speed2 / ref.m_r),
+            st.s - st.sigma,
+            float(np.linalg.norm(err)),
+        ]
+        return np.concatenate([head, err, base_ratio])
+
+
+class TimeIndexedFeatures(ControllerFeatures):
+    """e, ė against the controller's clock, last τ_base / τ_max (3n); Slotine–Li adds r."""
+
+    def __init__(
+        self,
+        controller: ComputedTorqueController | PDGravityController | SlotineLiController,
+        max_speed_rad_s: float,
+    ) -> None:
+        self.controller = controller
+        n = controller.n
+        self.lam: FloatArray | None = (
+            controller.lam if isinstance(controller, SlotineLiController) else None
+        )
+        ratio_names, ratio_high = _ratio_block(n)
+        names = [
+            *[f"e_{j}_rad" for j in range(n)],
+            *[f"ed_{j}_rad_s" for j in range(n)],
+            *ratio_names,
+        ]
+        blocks = [np.full(n, _TWO_PI), np.full(n, 2.0 * max_speed_rad_s), ratio_high]
+        if self.lam is not None:
+            names += [f"r_{j}_rad_s" for j in range(n)]
+            r_bound = 2.0 * max_speed_rad_s + _TWO_PI * float(np.max(self.lam))
+            blocks.append(np.full(n, r_bound))
+        high = np.concatenate(blocks)
+        super().__init__(names, -high, high)
+
+    def raw(self, q: FloatArray, qd: FloatArray, base_ratio: FloatArray) -> FloatArray:
+        """See the module table; the clock is the controller's ``diagnostics()["s"]``."""
+        s = self.controller.diagnostics()["s"]
+        q_r, qd_r, _ = self.controller.path.evaluate(s)
+        e, ed = q_r - q, qd_r - qd  # (n,) rad, rad/s
+        parts = [e, ed, base_ratio]
+        if self.lam is not None:
+            parts.append(ed + self.lam * e)
+        return np.concatenate(parts)
+
+
+def controller_features(controller: Controller, max_speed_rad_s: float) -> ControllerFeatures:
+    """The feature set of ``controller`` (see the module docstring's tables)."""
+    if isinstance(controller, PassivityController):
+        return PassivityFeatures(controller)
+    if isinstance(controller, (ComputedTorqueController, PDGravityController, SlotineLiController)):
+        return TimeIndexedFeatures(controller, max_speed_rad_s)
+    names, high = _ratio_block(controller.n)
+    return ControllerFeatures(names, -high, high)
+
+
+class ResidualWrapper(
+    gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray], gym.utils.RecordConstructorArgs
+):
+    """Learn a bounded torque correction on top of a base controller (module docstring).
+
+    Args:
+        env: a ptrack_gym env (any wrapper of a ``TrackingEnv``).
+        controller: the base controller, built for ``env``'s robot (same n), or the name
+            of a default-gain controller (``agents.factory.CONTROLLER_NAMES``). Given by
+            name, the wrapper is re-creatable from ``env.spec`` (``spec.make()``, as
+            Gymnasium's checker and ``gym.make(spec)`` do); given as an object, ``spec``
+            is None (a controller object cannot be rebuilt from a spec).
+        scale_nm: residual authority (N·m): a scalar or one value per joint, each finite
+            and ≥ 0; None (default) → ``DEFAULT_SCALE_FRACTION`` · τ_max.
+        include_controller_state: append the controller's feature vector to the
+            observation (default True).
+
+    Raises:
+        InvalidConfigError: (a ``ValueError``) a joint-count mismatch or a bad scale.
+    """
+
+    def __init__(
+        self,
+        env: gym.Env[np.ndarray, np.ndarray],
+        controller: Controller | str,
+        scale_nm: float | FloatArray | None = None,
+        include_controller_state: bool = True,
+    ) -> None:
+        self._controller_name = controller if isinstance(controller, str) else None
+        if self._controller_name is not None:
+            gym.utils.RecordConstructorArgs.__init__(
+                self,
+                controller=controller,
+                scale_nm=scale_nm,
+                include_controller_state=include_controller_state,
+            )
+        super().__init__(env)
+        u = env.unwrapped
+        self.tracking_env = u
+        self.n = int(u.n)
+        if isinstance(controller, str):
+            controller = make_controller(controller, env)
+        if controller.n != self.n:
+            raise InvalidConfigError(f"controller has {controller.n} joints, env has {self.n}")
+        self.controller = controller
+        self.torque_limits_nm = np.asarray(u.torque_limits_nm, dtype=np.float64)
+        if scale_nm is None:
+            scale = DEFAULT_SCALE_FRACTION * self.torque_limits_nm
+        else:
+            raw = np.asarray(scale_nm, dtype=np.float64)
+            if raw.ndim > 1 or (raw.ndim == 1 and raw.shape != (self.n,)):
+                raise InvalidConfigError(
+                    f"scale_nm must be a scalar or have {self.n} entries, got shape {raw.shape}"
+                )
+            scale = np.broadcast_to(raw, (self.n,)).copy()
+        if not (np.all(np.isfinite(scale)) and np.all(scale >= 0.0)):
+            raise InvalidConfigError(f"scale_nm must be finite and >= 0, got {scale.tolist()}")
+        self.scale_nm = scale
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(self.n,), dtype=np.float32)
+
+        inner = env.observation_space
+        assert isinstance(inner, spaces.Box)
+        self.features: ControllerFeatures | None = None
+        if include_controller_state:
+            self.features = controller_features(controller, float(u.max_speed))
+            low = np.concatenate([inner.low, self.features.low.astype(np.float32)])
+            high = np.concatenate([inner.high, self.features.high.astype(np.float32)])
+            self.observation_space = spaces.Box(low, high, dtype=np.float32)
+        self._base_ratio = np.zeros(self.n)
+
+    @property
+    def spec(self) -> EnvSpec | None:
+        """The env's spec with this wrapper appended, when the controller was given by
+        name; None when it was given as an object (it cannot be rebuilt)."""
+        if self._controller_name is None:
+            return None
+        return super().spec
+
+    @property
+    def feature_names(self) -> tuple[str, ...]:
+        """Names of the appended observation entries (empty without controller state)."""
+        return self.features.names if self.features is not None else ()
+
+    def _augment(self, obs: np.ndarray) -> np.ndarray:
+        if self.features is None:
+            return obs
+        q, qd = self.tracking_env.measured_joint_state()
+        feats = self.features(q, qd, self._base_ratio).astype(np.float32)
+        return np.concatenate([obs, feats])
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset the env, then the controller at the measured state and phase s₀ + t."""
+        obs, info = self.env.reset(seed=seed, options=options)
+        u = self.tracking_env
+        q, qd = u.measured_joint_state()
+        self.controller.reset(q, qd, u.s0 + u.t)
+        self._base_ratio = np.zeros(self.n)
+        info["controller"] = self.controller.diagnostics()
+        return self._augment(obs), info
+
+    def step(
+        self, action: np.ndarray
+    ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+        """τ = τ_base + scale ⊙ clip(a, −1, 1) (N·m), applied as ``torque_to_action(τ)``.
+
+        Raises:
+            InvalidActionError: (a ``ValueError``) ``action`` is not of shape (n,) or has
+                a non-finite entry; nothing is stepped.
+        """
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (self.n,):
+            raise InvalidActionError(f"action must have shape ({self.n},), got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise InvalidActionError(f"action has non-finite entries: {a.tolist()}")
+        u = self.tracking_env
+        q, qd = u.measured_joint_state()
+        tau_base = self.controller.step(q, qd, u.dt)  # (n,) N·m
+        tau_res = self.scale_nm * np.minimum(np.maximum(a, -1.0), 1.0)  # (n,) N·m
+        inner_action = torque_to_action(tau_base + tau_res, self.torque_limits_nm)
+        obs, reward, terminated, truncated, info = self.env.step(inner_action)
+        self._base_ratio = tau_base / self.torque_limits_nm
+        info["tau_base_nm"] = tau_base
+        info["tau_residual_nm"] = tau_res
+        info["controller"] = self.controller.diagnostics()
+        return self._augment(obs), reward, terminated, truncated, info
+
+
+def make_residual_env(
+    env_id: str,
+    base: str = "passivity",
+    scale_fraction: float = DEFAULT_SCALE_FRACTION,
+    include_controller_state: bool = True,
+    **env_kwargs: Any,
+) -> ResidualWrapper:
+    """``gym.make(env_id, **env_kwargs)`` wrapped in a :class:`ResidualWrapper` around
+    the default-gain controller ``base`` (one of ``agents.factory.CONTROLLER_NAMES``),
+    with scale = ``scale_fraction`` · τ_max (N·m).
+
+    ``env_kwargs`` go to ``gym.make`` (env arguments such as ``control_hz``,
+    ``disturbance``, and ``max_episode_steps``), which rejects unknown names.
+
+    Raises:
+        InvalidConfigError: (a ``ValueError``) an unknown base or a bad scale fraction.
+    """
+    if base not in CONTROLLER_NAMES:
+        raise InvalidConfigError(f"unknown base controller {base!r}; known: {CONTROLLER_NAMES}")
+    if not (math.isfinite(scale_fraction) and scale_fraction >= 0.0):
+        raise InvalidConfigError(f"scale_fraction must be finite and >= 0, got {scale_fraction}")
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        limits = np.asarray(env.unwrapped.torque_limits_nm, dtype=np.float64)
+        scale_nm = tuple(float(x) for x in scale_fraction * limits)
+        return ResidualWrapper(env, base, scale_nm, include_controller_state)
+    except BaseException:
+        env.close()
+        raise

@@ -1,0 +1,145 @@
+"""SAC training throughput on the residual env next to the same env without the base
+controller, measured in one run.
+
+Three variants of the env of ``train.train`` (the robot's default control rate, 5-s
+episodes, start on the path, no disturbance): *pure* (no base controller), *residual,
+no features* (the base controller, the inner observation only: the same network input
+as pure, so the difference is the controller's cost) and *residual* (the default: the
+controller's features appended, which also widens the network's input). SAC uses the
+packaged ``train/hyperparams/sac.yml`` except ``learning_starts`` (= ``--warmup``) and
+the buffer size. For each variant: build the env and SAC, run ``--warmup`` + 50 steps
+untimed, then time ``--steps`` more steps of ``learn`` (one gradient step each). The
+variants alternate over ``--repeats`` rounds, in reverse order every other round; the
+median steps/s is reported. Also measured, without learning: env steps/s under uniform
+random actions, whose difference gives the controller's cost per step in µs, reported
+as a fraction of a pure SAC step (a load-independent estimate of the same ratio).
+
+Issue target: the base controller costs at most 10 % of SAC's training throughput,
+i.e. residual / pure ≥ 0.9.
+
+Run: ``python bench/train_throughput.py [--env ptrack_gym/TwoLinkTrack-v0]
+[--base passivity] [--steps 1000] [--warmup 300] [--repeats 3]``. One process at a
+time; it sets ``torch.set_num_threads(1)``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+from stable_baselines3 import SAC
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from agents.factory import CONTROLLER_NAMES
+from agents.residual import make_residual_env
+from train.train import TrainConfig, validate
+
+
+def make(env_id: str, residual: str, features: bool = True) -> tuple[gym.Env, dict]:
+    """The training env of ``train.train`` (residual "none" or a base controller, with or
+    without its features) and the resolved SAC hyperparameters."""
+    res = validate(TrainConfig(out="/nonexistent", algo="sac", env_id=env_id, residual=residual))
+    env_kwargs = {
+        "control_hz": res.control_hz,
+        "max_episode_steps": res.max_episode_steps,
+        "start": "on_path",
+    }
+    if residual == "none":
+        return gym.make(env_id, **env_kwargs), res.algo_kwargs
+    env = make_residual_env(env_id, residual, include_controller_state=features, **env_kwargs)
+    return env, res.algo_kwargs
+
+
+def sac_steps_per_s(
+    env_id: str, residual: str, features: bool, steps: int, warmup: int, seed: int
+) -> float:
+    """Env steps per second of ``SAC.learn`` after ``warmup`` steps (one gradient step
+    per env step)."""
+    env, kwargs = make(env_id, residual, features)
+    kwargs = {**kwargs, "learning_starts": warmup, "buffer_size": warmup + steps + 10}
+    model = SAC(env=env, seed=seed, device="cpu", **kwargs)
+    model.learn(total_timesteps=warmup + 50)
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=steps, reset_num_timesteps=False)
+    elapsed = time.perf_counter() - t0
+    env.close()
+    return steps / elapsed
+
+
+def env_steps_per_s(env_id: str, residual: str, features: bool, steps: int, seed: int) -> float:
+    """Env steps per second under uniform random actions (resets included)."""
+    env, _ = make(env_id, residual, features)
+    rng = np.random.default_rng(seed)
+    env.reset(seed=seed)
+    n = env.action_space.shape[0]
+    actions = rng.uniform(-1.0, 1.0, size=(steps, n)).astype(np.float32)
+    t0 = time.perf_counter()
+    for a in actions:
+        _, _, terminated, truncated, _ = env.step(a)
+        if terminated or truncated:
+            env.reset()
+    elapsed = time.perf_counter() - t0
+    env.close()
+    return steps / elapsed
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", default="ptrack_gym/TwoLinkTrack-v0")
+    parser.add_argument("--base", choices=CONTROLLER_NAMES, default="passivity")
+    parser.add_argument("--steps", type=int, default=1000, help="timed SAC steps")
+    parser.add_argument("--warmup", type=int, default=300, help="untimed steps first")
+    parser.add_argument("--env-steps", type=int, default=5000, help="random-action steps")
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+
+    variants = {
+        "pure": ("none", False),
+        f"residual ({args.base}), no features": (args.base, False),
+        f"residual ({args.base})": (args.base, True),
+    }
+    sac: dict[str, list[float]] = {k: [] for k in variants}
+    raw: dict[str, list[float]] = {k: [] for k in variants}
+    for r in range(args.repeats):
+        order = list(variants) if r % 2 == 0 else list(reversed(variants))
+        for label in order:
+            residual, features = variants[label]
+            raw[label].append(env_steps_per_s(args.env, residual, features, args.env_steps, r))
+            sac[label].append(
+                sac_steps_per_s(args.env, residual, features, args.steps, args.warmup, r)
+            )
+            print(
+                f"# round {r}: {label}: env {raw[label][-1]:.0f} steps/s, "
+                f"SAC {sac[label][-1]:.1f} steps/s",
+                flush=True,
+            )
+    med_sac = {k: statistics.median(v) for k, v in sac.items()}
+    med_env = {k: statistics.median(v) for k, v in raw.items()}
+    pure_sac, pure_env = med_sac["pure"], med_env["pure"]
+    print(f"\n{args.env}, medians of {args.repeats} rounds:\n")
+    print(
+        "| variant | env only, random actions (steps/s) | SAC training (steps/s) "
+        "| SAC vs pure | extra env cost (µs/step) | extra env cost / pure SAC step |"
+    )
+    print("|---|---:|---:|---:|---:|---:|")
+    for label in variants:
+        extra_us = (1.0 / med_env[label] - 1.0 / pure_env) * 1e6
+        print(
+            f"| {label} | {med_env[label]:.0f} | {med_sac[label]:.1f} "
+            f"| {med_sac[label] / pure_sac:.3f} | {extra_us:.0f} "
+            f"| {extra_us * 1e-6 * pure_sac:.1%} |"
+        )
+    print("\ntarget: the base controller costs <= 10 % (SAC vs pure >= 0.9)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

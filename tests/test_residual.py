@@ -1,0 +1,205 @@
+"""The residual wrapper and the controller factory: bit-exact reproduction of the base
+controller at a = 0, the checkers, features, bounds and error paths."""
+
+from __future__ import annotations
+
+import sys
+import types
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import ptrack_gym  # noqa: F401  (registers the environment ids)
+from agents.base import Controller
+from agents.factory import CONTROLLER_NAMES, make_controller, passivity_gains
+from agents.passivity import PassivityGains
+from agents.policy import ControllerPolicy, torque_to_action
+from agents.residual import DEFAULT_SCALE_FRACTION, ResidualWrapper, make_residual_env
+from ptrack_gym.errors import InvalidConfigError
+
+TWO_LINK = "ptrack_gym/TwoLinkTrack-v0"
+#: A short episode at the training rate for TwoLink: 250 Hz, 0.4 s.
+SHORT = {"control_hz": 250.0, "max_episode_steps": 100, "start": "rest_near_path"}
+
+
+@pytest.mark.parametrize(
+    ("base", "disturbance"),
+    [("passivity", None), ("computed_torque", None), ("passivity", "noise")],
+)
+@pytest.mark.parametrize("include_state", [True, False])
+def test_zero_residual_is_bit_identical_to_the_standalone_controller(
+    make_env, base: str, disturbance: str | None, include_state: bool
+) -> None:
+    """a = 0 reproduces ControllerPolicy exactly: obs, reward, flags, true (q, q̇)."""
+    kwargs = {**SHORT, "disturbance": disturbance}
+    wrapped = make_env.track(
+        make_residual_env(TWO_LINK, base, include_controller_state=include_state, **kwargs)
+    )
+    plain = make_env(TWO_LINK, **kwargs)
+    policy = ControllerPolicy(plain, make_controller(base, plain))
+    obs_w, _ = wrapped.reset(seed=7)
+    obs_p, _ = plain.reset(seed=7)
+    n_inner = obs_p.shape[0]
+    assert obs_w.shape[0] == n_inner + len(wrapped.feature_names)
+    assert np.array_equal(obs_w[:n_inner], obs_p)
+    zero = np.zeros(2, dtype=np.float32)
+    steps = 0
+    while True:
+        action, _ = policy.predict(obs_p)
+        obs_w, r_w, term_w, trunc_w, info_w = wrapped.step(zero)
+        obs_p, r_p, term_p, trunc_p, info_p = plain.step(action)
+        steps += 1
+        assert np.array_equal(obs_w[:n_inner], obs_p)
+        assert r_w == r_p and term_w == term_p and trunc_w == trunc_p
+        for x_w, x_p in zip(
+            wrapped.unwrapped.joint_state(), plain.unwrapped.joint_state(), strict=True
+        ):
+            assert np.array_equal(x_w, x_p)
+        assert np.array_equal(info_w["tau_nm"], info_p["tau_nm"])
+        assert np.array_equal(info_w["tau_base_nm"], policy.last_tau_nm)
+        assert np.array_equal(info_w["tau_residual_nm"], np.zeros(2))
+        assert info_w["controller"] == policy.last_diagnostics
+        if term_w or trunc_w:
+            break
+    assert steps == SHORT["max_episode_steps"]
+
+
+@pytest.mark.parametrize("base", ["passivity", "computed_torque"])
+def test_residual_env_passes_gymnasium_and_sb3_checkers(make_env, base: str) -> None:
+    env = make_env.track(make_residual_env(TWO_LINK, base, **SHORT))
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*different from the unwrapped.*")
+        gym_check_env(env, skip_render_check=True)
+    sb3_check_env(env)
+
+
+def test_bad_actions_raise_value_error_and_step_nothing(make_env) -> None:
+    env = make_env.track(make_residual_env(TWO_LINK, "passivity", **SHORT))
+    env.reset(seed=0)
+    for bad in (np.zeros(3), np.zeros((1, 2)), np.array([0.0, np.nan]), np.array([np.inf, 0])):
+        with pytest.raises(ValueError):
+            env.step(bad)
+    assert env.unwrapped.t == 0.0
+
+
+def test_residual_torque_adds_scale_times_clipped_action(make_env) -> None:
+    """τ = τ_base + scale ⊙ clip(a, −1, 1); the env applies torque_to_action(τ) · τ_max."""
+    env = make_env.track(make_residual_env(TWO_LINK, "computed_torque", **SHORT))
+    env.reset(seed=1)
+    limits = env.unwrapped.torque_limits_nm
+    np.testing.assert_array_equal(env.scale_nm, DEFAULT_SCALE_FRACTION * limits)
+    _, _, _, _, info = env.step(np.array([3.0, -0.5], dtype=np.float32))
+    expected_res = env.scale_nm * np.array([1.0, -0.5])
+    np.testing.assert_array_equal(info["tau_residual_nm"], expected_res)
+    applied = torque_to_action(info["tau_base_nm"] + expected_res, limits).astype(np.float64)
+    np.testing.assert_array_equal(info["tau_nm"], applied * limits)
+
+
+@pytest.mark.parametrize("base", CONTROLLER_NAMES)
+def test_features_are_bounded_float32_and_named(make_env, base: str) -> None:
+    env = make_env.track(make_residual_env(TWO_LINK, base, disturbance="impulse", **SHORT))
+    space = env.observation_space
+    assert space.dtype == np.float32
+    assert np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))
+    n_inner = env.unwrapped.observation_space.shape[0]
+    assert space.shape == (n_inner + len(env.feature_names),)
+    expected = {"passivity": 6 + 4, "computed_torque": 6, "pd_gravity": 6, "slotine_li": 8}
+    assert len(env.feature_names) == expected[base]
+    obs, _ = env.reset(seed=2)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        assert space.contains(obs)
+        obs, *_ = env.step(rng.uniform(-1, 1, 2).astype(np.float32))
+
+
+def test_passivity_features_at_reset(make_env) -> None:
+    """At reset s̃ = 0 and ṡ₀ = σ̇(q₀, q̇₀, s₀) (the controller's default), the path error
+    is the norm of its vector, and the last base torque is 0."""
+    env = make_env.track(make_residual_env(TWO_LINK, "passivity", **SHORT))
+    obs, info = env.reset(seed=3)
+    f = dict(zip(env.feature_names, obs[-len(env.feature_names) :].astype(np.float64), strict=True))
+    assert f["s_tilde_s"] == 0.0
+    assert f["sd"] == pytest.approx(f["sigma_dot"], rel=1e-6)
+    assert f["sd"] == pytest.approx(info["controller"]["sd"], rel=1e-6)
+    err = np.array([f["path_error_0_rad"], f["path_error_1_rad"]])
+    assert f["path_error_rad"] == pytest.approx(np.linalg.norm(err), rel=1e-5)
+    assert f["tau_base_ratio_0"] == f["tau_base_ratio_1"] == 0.0
+    phase = 2 * np.pi * info["controller"]["s"] / env.unwrapped.path.period_s
+    assert f["sin_phase_s"] == pytest.approx(np.sin(phase), abs=1e-6)
+
+
+def test_time_indexed_features_repeat_the_observation_errors(make_env) -> None:
+    """Computed torque's clock equals s₀ + t, so its e, ė match obs[4n:6n]."""
+    env = make_env.track(make_residual_env(TWO_LINK, "computed_torque", **SHORT))
+    obs, _ = env.reset(seed=4)
+    n, n_inner = 2, 14
+    for _ in range(20):
+        obs, _, _, _, info = env.step(np.zeros(2, dtype=np.float32))
+    feats = obs[n_inner:]
+    np.testing.assert_allclose(feats[: 2 * n], obs[4 * n : 6 * n], atol=1e-6)
+    ratio = info["tau_base_nm"] / env.unwrapped.torque_limits_nm
+    np.testing.assert_allclose(feats[2 * n :], ratio, rtol=1e-6)
+
+
+def test_spec_recreates_a_named_controller_but_not_an_object(make_env) -> None:
+    env = make_env.track(make_residual_env(TWO_LINK, "pd_gravity", **SHORT))
+    remade = make_env.track(gym.make(env.spec))
+    assert isinstance(remade, ResidualWrapper)
+    assert remade.feature_names == env.feature_names
+    assert remade.spec.max_episode_steps == SHORT["max_episode_steps"]
+    inner = make_env(TWO_LINK, **SHORT)
+    by_object = ResidualWrapper(inner, make_controller("pd_gravity", inner))
+    assert by_object.spec is None
+
+
+def test_bad_configuration_raises(make_env) -> None:
+    with pytest.raises(ValueError, match="unknown base controller"):
+        make_residual_env(TWO_LINK, "lqr")
+    with pytest.raises(ValueError, match="scale_fraction"):
+        make_residual_env(TWO_LINK, "passivity", scale_fraction=-0.1)
+    inner = make_env(TWO_LINK, **SHORT)
+    ctrl = make_controller("passivity", inner)
+    for scale in (np.array([1.0, 2.0, 3.0]), -1.0, np.nan):
+        with pytest.raises(InvalidConfigError):
+            ResidualWrapper(inner, ctrl, scale_nm=scale)
+    iiwa_ctrl = make_controller("computed_torque", make_env("ptrack_gym/IiwaTrack-v0"))
+    with pytest.raises(InvalidConfigError, match="joints"):
+        ResidualWrapper(inner, iiwa_ctrl)
+
+
+def test_factory_builds_every_controller(make_env) -> None:
+    env = make_env(TWO_LINK, **SHORT)
+    for name in CONTROLLER_NAMES:
+        assert isinstance(make_controller(name, env), Controller)
+    with pytest.raises(ValueError, match="unknown controller"):
+        make_controller("lqr", env)
+
+
+def test_factory_switches_to_passivity_defaults_when_the_module_exists(make_env, monkeypatch):
+    """``agents.passivity_defaults.default_passivity_gains`` wins over the interim gains;
+    its parameters are filled by name from the env."""
+    env = make_env(TWO_LINK, **SHORT)
+    interim = passivity_gains(env)
+    seen: dict[str, object] = {}
+
+    def default_passivity_gains(robot_name: str, model: object, k_pump: float = 1.0):
+        seen.update(robot_name=robot_name, model=model)
+        return PassivityGains(K=7.0, kappa=2.0, R=0.5, k_pump=k_pump)
+
+    fake = types.ModuleType("agents.passivity_defaults")
+    fake.default_passivity_gains = default_passivity_gains  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "agents.passivity_defaults", fake)
+    ctrl = make_controller("passivity", env)
+    assert ctrl.gains == PassivityGains(K=7.0, kappa=2.0, R=0.5, k_pump=1.0) != interim
+    assert seen == {"robot_name": "two_link", "model": env.unwrapped.model}
+
+    def needs_unknown(robot_mass_kg: float) -> PassivityGains:
+        raise AssertionError("not called")
+
+    fake.default_passivity_gains = needs_unknown  # type: ignore[attr-defined]
+    with pytest.raises(InvalidConfigError, match="robot_mass_kg"):
+        make_controller("passivity", env)

@@ -1,0 +1,214 @@
+"""``python -m train.train``: short SAC/TD3/PPO runs, pure and residual, in-process;
+reloading, VecNormalize round-trips, resuming, and configuration errors before training.
+
+Every run is a few hundred steps of 0.2-s TwoLink episodes with tiny networks, so the
+whole file stays well under a minute on a loaded 2-core machine.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+from stable_baselines3 import PPO, SAC, TD3
+from stable_baselines3.common.vec_env import VecNormalize
+
+from train.train import (
+    ALGOS,
+    TrainConfig,
+    TrainConfigError,
+    build_env,
+    main,
+    parse_args,
+    parse_python_literal,
+    run,
+    validate,
+    zero_init_actor,
+)
+
+#: Tiny, fast hyperparameters per algorithm (passed with --set).
+FAST = {
+    "sac": ["learning_starts=50", "batch_size=32", "buffer_size=1000"],
+    "td3": ["learning_starts=50", "batch_size=32", "buffer_size=1000"],
+    "ppo": ["n_steps=64", "batch_size=32", "n_epochs=2"],
+}
+NET = {"sac": "dict(net_arch=[32, 32])", "td3": "dict(net_arch=[32, 32])"}
+NET["ppo"] = "dict(log_std_init=-1.0, net_arch=dict(pi=[32], vf=[32]), activation_fn=nn.Tanh)"
+
+
+def argv(out: Path, algo: str, residual: str, steps: int, *extra: str) -> list[str]:
+    """A fast command line: 0.2-s TwoLink episodes at 250 Hz (50 steps), tiny nets."""
+    sets = [*FAST[algo], f"policy_kwargs={NET[algo]}"]
+    return [
+        "--algo",
+        algo,
+        "--residual",
+        residual,
+        "--steps",
+        str(steps),
+        "--out",
+        str(out),
+        "--episode-s",
+        "0.2",
+        "--eval-freq",
+        "100",
+        "--eval-episodes",
+        "1",
+        "--checkpoint-freq",
+        "100",
+        *[x for s in sets for x in ("--set", s)],
+        *extra,
+    ]
+
+
+@pytest.mark.parametrize(
+    ("algo", "residual"),
+    [
+        ("sac", "none"),
+        ("sac", "passivity"),
+        ("td3", "none"),
+        ("td3", "computed_torque"),
+        ("ppo", "none"),
+        ("ppo", "passivity"),
+    ],
+)
+def test_short_run_saves_a_reloadable_model(tmp_path: Path, algo: str, residual: str) -> None:
+    out = tmp_path / "run"
+    result = run(parse_args(argv(out, algo, residual, 200, "--disturbance", "impulse:0.5")))
+    model = result.model
+    assert result.num_timesteps >= 200
+    for name in ("config.yml", "command.txt", "versions.json", "model.zip", "vecnormalize.pkl"):
+        assert (out / name).is_file(), name
+    assert (out / "eval" / "from_0" / "evaluations.npz").is_file()
+    assert (out / "checkpoints" / f"rl_model_{result.num_timesteps}_steps.zip").is_file()
+    saved = yaml.safe_load((out / "config.yml").read_text())
+    assert saved["config"]["residual"] == residual
+    assert saved["derived"]["control_hz"] == 250.0
+    assert saved["derived"]["max_episode_steps"] == 50
+    assert "train.train" in (out / "command.txt").read_text()
+
+    reloaded = ALGOS[algo].load(out / "model.zip", device="cpu")
+    obs_dim = model.observation_space.shape[0]
+    assert obs_dim == (14 if residual == "none" else reloaded.observation_space.shape[0])
+    obs = np.random.default_rng(0).normal(size=(5, obs_dim)).astype(np.float32)
+    a_mem, _ = model.predict(obs, deterministic=True)
+    a_disk, _ = reloaded.predict(obs, deterministic=True)
+    np.testing.assert_array_equal(a_mem, a_disk)
+
+    venv = model.get_vec_normalize_env()
+    assert isinstance(venv, VecNormalize)
+    loaded = VecNormalize.load(str(out / "vecnormalize.pkl"), venv.venv)
+    np.testing.assert_array_equal(loaded.obs_rms.mean, venv.obs_rms.mean)
+    np.testing.assert_array_equal(loaded.obs_rms.var, venv.obs_rms.var)
+    assert loaded.obs_rms.count == venv.obs_rms.count
+
+
+def test_resume_continues_steps_replay_buffer_and_statistics(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    first = run(parse_args(argv(out, "sac", "passivity", 200)))
+    assert first.num_timesteps == 200
+    count_before = first.model.get_vec_normalize_env().obs_rms.count
+    second = run(parse_args(argv(out, "sac", "passivity", 200, "--resume")))
+    assert second.num_timesteps == 400
+    assert second.model.replay_buffer.size() == 400
+    # VecNormalize continued from the checkpoint: 200 more observations (plus resets).
+    assert second.model.get_vec_normalize_env().obs_rms.count > count_before + 200
+    ckpt = out / "checkpoints"
+    assert (ckpt / "rl_model_400_steps.zip").is_file()
+    assert sorted(p.name for p in ckpt.glob("*replay_buffer*")) == [
+        "rl_model_replay_buffer_400_steps.pkl"
+    ]
+    assert len((out / "command.txt").read_text().splitlines()) == 2
+    with pytest.raises(TrainConfigError, match="differs"):
+        run(parse_args(argv(out, "sac", "computed_torque", 100, "--resume")))
+    with pytest.raises(TrainConfigError, match="already holds a run"):
+        run(parse_args(argv(out, "sac", "passivity", 100)))
+
+
+@pytest.mark.parametrize(
+    ("extra", "match"),
+    [
+        (["--set", "learning_rat=1e-3"], "unknown hyperparameter"),
+        (["--env", "ptrack_gym/NoSuchTrack-v0"], "unknown env id"),
+        (["--disturbance", "earthquake"], "bad disturbance"),
+        (["--set", "policy_kwargs=__import__('os').getcwd()"], "only dict"),
+        (["--set", "policy_kwargs=dict(net_arch=[os.sep])"], "not allowed"),
+        (["--control-hz", "300"], "control_hz"),
+        (["--resume"], "no checkpoint"),
+    ],
+)
+def test_bad_config_raises_before_anything_is_written(
+    tmp_path: Path, extra: list[str], match: str
+) -> None:
+    out = tmp_path / "run"
+    with pytest.raises(TrainConfigError, match=match):
+        main(argv(out, "sac", "passivity", 100, *extra))
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("extra", [["--algo", "a2c"], ["--residual", "lqr"], ["--set", "novalue"]])
+def test_bad_cli_arguments_exit_with_usage_error(tmp_path: Path, extra: list[str]) -> None:
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as exc:
+        main(argv(out, "sac", "passivity", 100, *extra))
+    assert exc.value.code == 2
+    assert not out.exists()
+
+
+def test_config_dataclass_is_validated_too(tmp_path: Path) -> None:
+    for field, value in [("algo", "a2c"), ("residual", "lqr"), ("scale_fraction", -1.0)]:
+        cfg = TrainConfig(out=str(tmp_path / "x"), **{field: value})
+        with pytest.raises(TrainConfigError):
+            validate(cfg)
+    res = validate(TrainConfig(out=str(tmp_path / "x"), env_id="ptrack_gym/IiwaTrack-v0"))
+    assert res.control_hz == 500.0 and res.max_episode_steps == 2500
+    assert res.algo_kwargs["policy_kwargs"] == {"net_arch": [400, 300]}  # the env section
+    assert not (tmp_path / "x").exists()
+
+
+def test_hyperparameter_file_and_set_precedence(tmp_path: Path) -> None:
+    override = tmp_path / "hp.yml"
+    override.write_text(
+        "default:\n  gamma: 0.95\n  learning_rate: lin_1e-3\n"
+        "ptrack_gym/TwoLinkTrack-v0:\n  batch_size: 128\n"
+    )
+    cfg = parse_args(
+        ["--out", str(tmp_path / "r"), "--hyperparams", str(override), "--set", "batch_size=64"]
+    )
+    res = validate(cfg)
+    assert res.algo_kwargs["gamma"] == 0.95
+    assert res.algo_kwargs["batch_size"] == 64
+    assert res.algo_kwargs["learning_rate"](1.0) == pytest.approx(1e-3)
+    assert res.algo_kwargs["learning_rate"](0.0) == 0.0
+    assert res.normalize_kwargs == {"norm_obs": True, "norm_reward": False, "gamma": 0.95}
+    plain = parse_args(["--out", str(tmp_path / "r2"), "--no-vec-normalize"])
+    assert validate(plain).normalize_kwargs is None
+
+
+def test_parse_python_literal_is_safe() -> None:
+    value = parse_python_literal("dict(log_std_init=-2, net_arch=dict(pi=[64], vf=[64]))")
+    assert value == {"log_std_init": -2, "net_arch": {"pi": [64], "vf": [64]}}
+    assert parse_python_literal("dict(activation_fn=nn.ReLU)") == {"activation_fn": torch.nn.ReLU}
+    for bad in ("open('x')", "dict(**x)", "nn.Module.__subclasses__", "[1, 2][0]", "dict(a="):
+        with pytest.raises(TrainConfigError):
+            parse_python_literal(bad)
+
+
+@pytest.mark.parametrize("algo_cls", [SAC, TD3, PPO])
+def test_zero_init_residual_starts_at_zero_action(algo_cls: type) -> None:
+    env = build_env("ptrack_gym/TwoLinkTrack-v0", "passivity", 0.1, 250.0, 50, "on_path", None)
+    try:
+        model = algo_cls("MlpPolicy", env, seed=0, device="cpu", policy_kwargs={"net_arch": [16]})
+        zero_init_actor(model)
+        obs = np.random.default_rng(1).normal(size=(4, env.observation_space.shape[0]))
+        action, _ = model.predict(obs.astype(np.float32), deterministic=True)
+        np.testing.assert_array_equal(action, np.zeros((4, 2), dtype=np.float32))
+        if algo_cls is TD3:
+            with torch.no_grad():
+                target = model.policy.actor_target(model.policy.obs_to_tensor(obs)[0])
+            assert float(target.abs().max()) == 0.0
+    finally:
+        env.close()

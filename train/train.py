@@ -1,0 +1,796 @@
+"""Train SAC, TD3 or PPO on a ptrack_gym env, pure or residual on a base controller.
+
+Run from the repository root::
+
+    python -m train.train --algo sac --env ptrack_gym/TwoLinkTrack-v0 \\
+        --residual passivity --disturbance impulse:0.5 --steps 50000 --out runs/sac_tl
+
+Everything one run needs is one :class:`TrainConfig`; the CLI fills it (``--help``). The
+hyperparameters come from ``train/hyperparams/<algo>.yml`` (rl-baselines3-zoo format, see
+:func:`load_hyperparams` and ``docs/rl.md``), then ``--hyperparams FILE``, then
+``--set key=value``. Every configuration error — unknown algorithm, env id, residual
+base, disturbance or hyperparameter — raises :class:`TrainConfigError` (a ``ValueError``)
+or an argparse error *before* any env is built or any file written.
+
+The run folder ``--out`` receives ``config.yml`` (the resolved config and
+hyperparameters), ``command.txt`` (one line per invocation), ``versions.json``,
+``model.zip`` and ``vecnormalize.pkl`` (final), ``best_model.zip`` (EvalCallback),
+``eval/`` and ``monitor/`` (per invocation), ``tb/`` (``--tensorboard``) and
+``checkpoints/rl_model_<steps>_steps.zip`` with the matching VecNormalize statistics and,
+for the newest checkpoint only, the replay buffer (the final state is always saved there
+too, so ``--resume`` can continue any finished or interrupted run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import inspect
+import json
+import math
+import platform
+import re
+import shlex
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from functools import partial
+from importlib import metadata
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import gymnasium as gym
+import numpy as np
+import torch
+import yaml
+from stable_baselines3 import PPO, SAC, TD3
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.logger import configure as configure_logger
+from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.utils import LinearSchedule
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
+from torch import nn
+
+import ptrack_gym
+from agents.factory import CONTROLLER_NAMES
+from agents.residual import make_residual_env
+from ptrack_gym.disturbances import build_disturbances
+from ptrack_gym.errors import InvalidConfigError
+
+#: The algorithms ``--algo`` accepts.
+ALGOS: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "td3": TD3, "ppo": PPO}
+#: ``--residual`` choices: "none" (pure RL) or a base controller name.
+RESIDUAL_CHOICES: tuple[str, ...] = ("none", *CONTROLLER_NAMES)
+#: Default control rate (Hz) per robot, physics staying at 1 kHz: the lowest rate of
+#: {100, 250, 500, 1000} Hz at which every base controller, run standalone from the
+#: path, tracks as well as at 1 kHz (docs/rl.md has the figures).
+DEFAULT_CONTROL_HZ: dict[str, float] = {"two_link": 250.0, "iiwa": 500.0, "panda": 500.0}
+#: The packaged hyperparameter files, ``<algo>.yml``.
+HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
+#: Keys of a hyperparameter YAML that are not arguments of the algorithm's constructor.
+SPECIAL_KEYS = ("n_timesteps", "normalize", "n_envs", "noise_type", "noise_std")
+#: Constructor arguments the script sets itself.
+_RESERVED = ("self", "env", "tensorboard_log", "verbose", "seed", "device", "_init_setup_model")
+#: Names a ``policy_kwargs`` / ``normalize`` string may use (besides dict/list literals).
+_SAFE_NAMES: dict[str, Any] = {
+    "nn.ReLU": nn.ReLU,
+    "nn.Tanh": nn.Tanh,
+    "nn.ELU": nn.ELU,
+    "nn.LeakyReLU": nn.LeakyReLU,
+    "nn.GELU": nn.GELU,
+    "nn.SiLU": nn.SiLU,
+    "True": True,
+    "False": False,
+    "None": None,
+}
+_CHECKPOINT_PREFIX = "rl_model"
+_CHECKPOINT_RE = re.compile(rf"^{_CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")
+_REPLAY_RE = re.compile(rf"^{_CHECKPOINT_PREFIX}_replay_buffer_(\d+)_steps\.pkl$")
+
+
+class TrainConfigError(InvalidConfigError):
+    """A training configuration is invalid (raised before anything is trained or written)."""
+
+
+@dataclass
+class TrainConfig:
+    """Everything that defines one training run (SI units where physical)."""
+
+    out: str
+    """Run folder: config, checkpoints, final model, logs."""
+    algo: str = "sac"
+    """Algorithm: "sac", "td3" or "ppo"."""
+    env_id: str = "ptrack_gym/TwoLinkTrack-v0"
+    """A ptrack_gym env id (``ptrack_gym.ENV_IDS``)."""
+    residual: str = "none"
+    """"none" for pure RL, or the base controller of a residual policy (agents.factory)."""
+    scale_fraction: float = 0.1
+    """Residual authority: scale = scale_fraction · τ_max per joint (N·m)."""
+    disturbance: str = "none"
+    """Training disturbance: "none", a preset ("impulse") or "preset:level" ("push:0.5")."""
+    eval_disturbance: str | None = None
+    """Disturbance of the evaluation env, same syntax; None → the training disturbance."""
+    steps: int | None = None
+    """Environment steps to train in this invocation (added to a resumed count); None →
+    the hyperparameter file's ``n_timesteps``."""
+    seed: int = 0
+    """Seed of the model, the training envs (seed … seed + n_envs − 1), eval env seed + 1000."""
+    hyperparams: str | None = None
+    """A YAML file (same format as train/hyperparams/<algo>.yml) merged over the packaged one."""
+    overrides: dict[str, Any] = field(default_factory=dict)
+    """Hyperparameter overrides (``--set key=value``), applied last."""
+    n_envs: int | None = None
+    """Parallel training envs (DummyVecEnv); None → the YAML's ``n_envs``, else 1."""
+    vec_normalize: bool | None = None
+    """Wrap the envs in VecNormalize; None → the YAML's ``normalize``, else False."""
+    eval_freq: int = 10_000
+    """Evaluate every this many env steps (summed over envs); 0 disables evaluation."""
+    eval_episodes: int = 5
+    """Episodes per evaluation."""
+    checkpoint_freq: int = 50_000
+    """Checkpoint every this many env steps (summed over envs); 0: only the final one."""
+    resume: bool = False
+    """Continue from the newest checkpoint in ``out`` (model, replay buffer, VecNormalize)."""
+    zero_init_residual: bool = False
+    """Zero the actor's output layer (SAC/TD3 mu, PPO action_net): the policy starts at a = 0."""
+    progress_bar: bool = False
+    """Show SB3's progress bar (tqdm + rich)."""
+    tensorboard: bool = False
+    """Log to TensorBoard under ``out/tb/from_<steps>`` (progress.csv is written there always)."""
+    control_hz: float | None = None
+    """Control rate (Hz); None → :data:`DEFAULT_CONTROL_HZ` of the robot. Physics: 1 kHz."""
+    episode_s: float = 5.0
+    """Episode length (s): max_episode_steps = round(episode_s · control_hz)."""
+    start: str = "on_path"
+    """The env's start mode: "on_path" or "rest_near_path"."""
+    torch_threads: int = 1
+    """``torch.set_num_threads`` (the machines are shared: keep 1)."""
+    device: str = "cpu"
+    """Torch device."""
+    verbose: int = 0
+    """SB3 verbosity (0, 1, 2)."""
+
+
+class TrainResult(NamedTuple):
+    """What :func:`run` returns."""
+
+    model: BaseAlgorithm  # the trained model (its envs are closed)
+    run_dir: Path  # the run folder
+    num_timesteps: int  # the model's step count at the end
+
+
+# -- parsing -------------------------------------------------------------------------
+def parse_python_literal(text: str) -> Any:
+    """Evaluate a ``policy_kwargs``-style string safely, e.g.
+    ``"dict(net_arch=[256, 256], activation_fn=nn.ReLU)"``.
+
+    Allowed: numbers, strings, lists, tuples, ``{...}`` dicts, ``dict(key=value, ...)``,
+    unary minus, and the names of :data:`_SAFE_NAMES`. Anything else raises
+    :class:`TrainConfigError`; no code is executed.
+    """
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except SyntaxError as exc:
+        raise TrainConfigError(f"cannot parse {text!r}: {exc.msg}") from None
+
+    def convert(node: ast.AST) -> Any:
+        if isinstance(node, ast.Constant):
+            return node.value
+        if isinstance(node, (ast.List, ast.Tuple)):
+            items = [convert(e) for e in node.elts]
+            return items if isinstance(node, ast.List) else tuple(items)
+        if isinstance(node, ast.Dict):
+            if any(k is None for k in node.keys):
+                raise TrainConfigError(f"'**' is not allowed in {text!r}")
+            return {convert(k): convert(v) for k, v in zip(node.keys, node.values, strict=True)}
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
+            value = convert(node.operand)
+            if not isinstance(value, (int, float)):
+                raise TrainConfigError(f"unary sign on a non-number in {text!r}")
+            return -value if isinstance(node.op, ast.USub) else value
+        if isinstance(node, ast.Call):
+            if not (isinstance(node.func, ast.Name) and node.func.id == "dict") or node.args:
+                raise TrainConfigError(f"only dict(key=value, ...) calls are allowed in {text!r}")
+            if any(kw.arg is None for kw in node.keywords):
+                raise TrainConfigError(f"'**' is not allowed in {text!r}")
+            return {kw.arg: convert(kw.value) for kw in node.keywords}
+        name = ast.unparse(node)
+        if isinstance(node, (ast.Name, ast.Attribute)) and name in _SAFE_NAMES:
+            return _SAFE_NAMES[name]
+        raise TrainConfigError(
+            f"{name!r} is not allowed in {text!r}; allowed names: {sorted(_SAFE_NAMES)}"
+        )
+
+    return convert(tree.body)
+
+
+def parse_disturbance(text: str | None) -> Any:
+    """ "none" → None; "impulse" → "impulse"; "impulse:0.5" → ("impulse", 0.5)."""
+    if text is None or text == "none":
+        return None
+    name, sep, level = text.partition(":")
+    if not sep:
+        return name
+    try:
+        return (name, float(level))
+    except ValueError:
+        raise TrainConfigError(f"disturbance level must be a number: {text!r}") from None
+
+
+def parse_set(items: Sequence[str]) -> dict[str, Any]:
+    """``["key=value", ...]`` → dict; values are read as YAML scalars (``1e-3`` → float)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise TrainConfigError(f"--set expects key=value, got {item!r}")
+        out[key.strip()] = yaml.safe_load(value)
+    return out
+
+
+# -- hyperparameters -----------------------------------------------------------------
+def _read_yaml(path: Path) -> dict[str, Any]:
+    try:
+        data = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise TrainConfigError(f"hyperparameter file not found: {path}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
+        raise TrainConfigError(f"{path}: expected a mapping of sections (default, env ids)")
+    return data
+
+
+def load_hyperparams(cfg: TrainConfig) -> dict[str, Any]:
+    """The merged hyperparameters of ``cfg`` (unvalidated, strings not yet parsed).
+
+    Precedence, lowest first: ``<algo>.yml``'s ``default``, its ``<env_id>`` section,
+    then the same two sections of ``cfg.hyperparams``, then ``cfg.overrides``.
+    """
+    merged: dict[str, Any] = {}
+    files = [HYPERPARAMS_DIR / f"{cfg.algo}.yml"]
+    if cfg.hyperparams is not None:
+        files.append(Path(cfg.hyperparams))
+    for path in files:
+        data = _read_yaml(path)
+        merged.update(data.get("default", {}))
+        merged.update(data.get(cfg.env_id, {}))
+    merged.update(cfg.overrides)
+    return merged
+
+
+def _allowed_keys(algo_cls: type[BaseAlgorithm]) -> set[str]:
+    params = set(inspect.signature(algo_cls.__init__).parameters) - set(_RESERVED)
+    return params | set(SPECIAL_KEYS)
+
+
+def resolve_hyperparams(cfg: TrainConfig, raw: dict[str, Any]) -> tuple[dict[str, Any], dict]:
+    """Validate and convert hyperparameters.
+
+    Returns ``(algo_kwargs, special)``: the constructor arguments (``policy_kwargs`` and
+    ``normalize`` strings parsed by :func:`parse_python_literal`, ``lin_<x>`` learning
+    rates turned into linear schedules from x to 0, lists for ``train_freq`` into
+    tuples, ``noise_type``/``noise_std`` into ``action_noise``) and the special keys.
+
+    Raises:
+        TrainConfigError: an unknown key (the message lists the known ones) or a value
+            that cannot be converted.
+    """
+    algo_cls = ALGOS[cfg.algo]
+    allowed = _allowed_keys(algo_cls)
+    unknown = sorted(set(raw) - allowed)
+    if unknown:
+        raise TrainConfigError(
+            f"unknown hyperparameter(s) {unknown} for {cfg.algo}; known: {sorted(allowed)}"
+        )
+    kwargs = {k: v for k, v in raw.items() if k not in SPECIAL_KEYS}
+    special = {k: raw[k] for k in SPECIAL_KEYS if k in raw}
+    kwargs.setdefault("policy", "MlpPolicy")
+    if isinstance(kwargs.get("policy_kwargs"), str):
+        kwargs["policy_kwargs"] = parse_python_literal(kwargs["policy_kwargs"])
+    if kwargs.get("policy_kwargs") is not None and not isinstance(kwargs["policy_kwargs"], dict):
+        raise TrainConfigError(f"policy_kwargs must be a dict, got {kwargs['policy_kwargs']!r}")
+    for key in ("learning_rate", "clip_range"):
+        value = kwargs.get(key)
+        if isinstance(value, str):
+            if not value.startswith("lin_"):
+                raise TrainConfigError(f"{key}: a number or 'lin_<start>', got {value!r}")
+            try:
+                kwargs[key] = LinearSchedule(float(value[4:]), 0.0, 1.0)
+            except ValueError:
+                raise TrainConfigError(f"{key}: bad linear schedule {value!r}") from None
+    if isinstance(kwargs.get("train_freq"), list):
+        kwargs["train_freq"] = tuple(kwargs["train_freq"])
+    if "noise_type" in special:
+        if cfg.algo == "ppo":
+            raise TrainConfigError("noise_type / noise_std apply to sac and td3 only")
+        special.setdefault("noise_std", 0.1)
+    if isinstance(special.get("normalize"), str):
+        special["normalize"] = parse_python_literal(special["normalize"])
+    normalize = special.get("normalize", False)
+    if not isinstance(normalize, (bool, dict)):
+        raise TrainConfigError(f"normalize must be a bool or a dict, got {normalize!r}")
+    if isinstance(normalize, dict):
+        known = {"norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon"}
+        bad = sorted(set(normalize) - known)
+        if bad:
+            raise TrainConfigError(f"unknown VecNormalize option(s) {bad}; known: {sorted(known)}")
+    return kwargs, special
+
+
+def _action_noise(special: dict[str, Any], n_actions: int) -> Any:
+    if "noise_type" not in special:
+        return None
+    std = float(special["noise_std"]) * np.ones(n_actions)
+    kind = special["noise_type"]
+    if kind == "normal":
+        return NormalActionNoise(np.zeros(n_actions), std)
+    if kind == "ornstein-uhlenbeck":
+        return OrnsteinUhlenbeckActionNoise(np.zeros(n_actions), std)
+    raise TrainConfigError(f"noise_type must be 'normal' or 'ornstein-uhlenbeck', got {kind!r}")
+
+
+# -- validation ------------------------------------------------------------------------
+class Resolved(NamedTuple):
+    """A validated config with everything derived from it."""
+
+    cfg: TrainConfig
+    robot: str
+    control_hz: float
+    max_episode_steps: int
+    algo_kwargs: dict[str, Any]
+    special: dict[str, Any]
+    steps: int
+    n_envs: int
+    normalize_kwargs: dict[str, Any] | None  # None: no VecNormalize
+
+
+def validate(cfg: TrainConfig) -> Resolved:
+    """Check every field and resolve the hyperparameters; touches no file or env.
+
+    Raises:
+        TrainConfigError: the first problem found, with the valid choices.
+    """
+    if cfg.algo not in ALGOS:
+        raise TrainConfigError(f"unknown algo {cfg.algo!r}; known: {sorted(ALGOS)}")
+    if cfg.env_id not in ptrack_gym.ENV_IDS:
+        raise TrainConfigError(f"unknown env id {cfg.env_id!r}; known: {ptrack_gym.ENV_IDS}")
+    if cfg.residual not in RESIDUAL_CHOICES:
+        raise TrainConfigError(
+            f"unknown residual base {cfg.residual!r}; known: {list(RESIDUAL_CHOICES)}"
+        )
+    if not (math.isfinite(cfg.scale_fraction) and cfg.scale_fraction >= 0):
+        raise TrainConfigError(f"scale_fraction must be >= 0, got {cfg.scale_fraction}")
+    robot = gym.registry[cfg.env_id].kwargs.get("robot", "two_link")
+    for text in (cfg.disturbance, cfg.eval_disturbance):
+        try:
+            build_disturbances(parse_disturbance(text), robot)
+        except InvalidConfigError as exc:
+            raise TrainConfigError(f"bad disturbance {text!r}: {exc}") from None
+    control_hz = DEFAULT_CONTROL_HZ[robot] if cfg.control_hz is None else float(cfg.control_hz)
+    if not (math.isfinite(control_hz) and control_hz > 0 and 1000.0 % control_hz == 0):
+        raise TrainConfigError(f"control_hz must divide the 1 kHz physics rate, got {control_hz}")
+    if not (math.isfinite(cfg.episode_s) and cfg.episode_s > 0):
+        raise TrainConfigError(f"episode_s must be positive, got {cfg.episode_s}")
+    max_episode_steps = max(1, round(cfg.episode_s * control_hz))
+    if cfg.start not in ("on_path", "rest_near_path"):
+        raise TrainConfigError(f"start must be 'on_path' or 'rest_near_path', got {cfg.start!r}")
+    for name in ("eval_freq", "checkpoint_freq"):
+        if getattr(cfg, name) < 0:
+            raise TrainConfigError(f"{name} must be >= 0")
+    if cfg.eval_episodes < 1 or cfg.torch_threads < 1:
+        raise TrainConfigError("eval_episodes and torch_threads must be >= 1")
+    algo_kwargs, special = resolve_hyperparams(cfg, load_hyperparams(cfg))
+    steps = cfg.steps if cfg.steps is not None else special.get("n_timesteps")
+    if steps is None or int(steps) < 1:
+        raise TrainConfigError(f"steps must be >= 1 (or n_timesteps in the YAML), got {steps}")
+    n_envs = int(cfg.n_envs if cfg.n_envs is not None else special.get("n_envs", 1))
+    if n_envs < 1:
+        raise TrainConfigError(f"n_envs must be >= 1, got {n_envs}")
+    normalize = special.get("normalize", False)
+    if cfg.vec_normalize is not None:
+        normalize = (normalize or {}) if cfg.vec_normalize else False
+    normalize_kwargs = None
+    if normalize is not False:
+        normalize_kwargs = dict(normalize) if isinstance(normalize, dict) else {}
+        normalize_kwargs.setdefault("gamma", float(algo_kwargs.get("gamma", 0.99)))
+    run_dir = Path(cfg.out)
+    if cfg.resume:
+        if latest_checkpoint(run_dir) is None:
+            raise TrainConfigError(f"--resume: no checkpoint in {run_dir / 'checkpoints'}")
+        _check_resume_compatible(cfg, run_dir)
+    elif (run_dir / "config.yml").exists():
+        raise TrainConfigError(f"{run_dir} already holds a run; use --resume or a new --out")
+    return Resolved(
+        cfg,
+        robot,
+        control_hz,
+        max_episode_steps,
+        algo_kwargs,
+        special,
+        int(steps),
+        n_envs,
+        normalize_kwargs,
+    )
+
+
+def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
+    path = run_dir / "config.yml"
+    if not path.exists():
+        return
+    saved = yaml.safe_load(path.read_text()).get("config", {})
+    for key in ("algo", "env_id", "residual", "scale_fraction", "start", "episode_s"):
+        if key in saved and saved[key] != getattr(cfg, key):
+            raise TrainConfigError(
+                f"--resume: {key}={getattr(cfg, key)!r} differs from the run's {saved[key]!r}"
+            )
+
+
+def latest_checkpoint(run_dir: Path) -> tuple[int, Path] | None:
+    """(steps, path) of the newest ``checkpoints/rl_model_<steps>_steps.zip``, or None."""
+    folder = run_dir / "checkpoints"
+    if not folder.is_dir():
+        return None
+    found = [(int(m.group(1)), p) for p in folder.iterdir() if (m := _CHECKPOINT_RE.match(p.name))]
+    return max(found) if found else None
+
+
+# -- environments ----------------------------------------------------------------------
+def build_env(
+    env_id: str,
+    residual: str,
+    scale_fraction: float,
+    control_hz: float,
+    max_episode_steps: int,
+    start: str,
+    disturbance: str | None,
+) -> gym.Env:
+    """One training or evaluation env: ``gym.make`` (+ the residual wrapper)."""
+    env_kwargs: dict[str, Any] = {
+        "control_hz": control_hz,
+        "start": start,
+        "disturbance": parse_disturbance(disturbance),
+        "max_episode_steps": max_episode_steps,
+    }
+    if residual == "none":
+        return gym.make(env_id, **env_kwargs)
+    return make_residual_env(env_id, residual, scale_fraction, **env_kwargs)
+
+
+def _env_factory(res: Resolved, disturbance: str | None) -> Callable[[], gym.Env]:
+    c = res.cfg
+    return partial(
+        build_env,
+        c.env_id,
+        c.residual,
+        c.scale_fraction,
+        res.control_hz,
+        res.max_episode_steps,
+        c.start,
+        disturbance,
+    )
+
+
+def make_envs(res: Resolved, run_dir: Path, session: str) -> tuple[VecEnv, VecEnv]:
+    """Training VecEnv (Monitor, optional VecNormalize) and the evaluation VecEnv (its
+    own VecNormalize with training=False, norm_reward=False; EvalCallback copies the
+    training obs statistics into it before every evaluation)."""
+    c = res.cfg
+    train_env = make_vec_env(
+        _env_factory(res, c.disturbance),
+        n_envs=res.n_envs,
+        seed=c.seed,
+        monitor_dir=str(run_dir / "monitor" / session),
+        vec_env_cls=DummyVecEnv,
+    )
+    eval_dist = c.disturbance if c.eval_disturbance is None else c.eval_disturbance
+    eval_env = make_vec_env(
+        _env_factory(res, eval_dist), n_envs=1, seed=c.seed + 1000, vec_env_cls=DummyVecEnv
+    )
+    if res.normalize_kwargs is not None:
+        train_env = VecNormalize(train_env, **res.normalize_kwargs)
+        eval_kwargs = {**res.normalize_kwargs, "norm_reward": False}
+        eval_env = VecNormalize(eval_env, training=False, **eval_kwargs)
+    return train_env, eval_env
+
+
+# -- model -------------------------------------------------------------------------------
+def _last_linear(module: nn.Module) -> nn.Linear:
+    linears = [m for m in module.modules() if isinstance(m, nn.Linear)]
+    if not linears:
+        raise TrainConfigError(f"no linear layer in {module}")
+    return linears[-1]
+
+
+def zero_init_actor(model: BaseAlgorithm) -> None:
+    """Zero the weights and bias of the actor's output layer, so the deterministic action
+    is exactly 0 (SAC: ``actor.mu``; TD3: the last linear layer of ``actor.mu``, copied to
+    the target actor; PPO: ``policy.action_net``)."""
+    policy: Any = model.policy
+    if isinstance(model, SAC):
+        layers = [_last_linear(policy.actor.mu)]
+    elif isinstance(model, TD3):
+        layers = [_last_linear(policy.actor.mu)]
+    elif isinstance(model, PPO):
+        layers = [_last_linear(policy.action_net)]
+    else:
+        raise TrainConfigError(f"zero init is not implemented for {type(model).__name__}")
+    with torch.no_grad():
+        for layer in layers:
+            layer.weight.zero_()
+            layer.bias.zero_()
+    if isinstance(model, TD3):
+        policy.actor_target.load_state_dict(policy.actor.state_dict())
+
+
+def versions() -> dict[str, str]:
+    """Python, platform and the versions of the packages a run depends on."""
+    out = {"python": sys.version.split()[0], "platform": platform.platform()}
+    for pkg in (
+        "ptrack_gym",
+        "gymnasium",
+        "stable-baselines3",
+        "torch",
+        "numpy",
+        "scipy",
+        "pybullet",
+        "PyYAML",
+    ):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
+
+
+def _yaml_safe(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _yaml_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_yaml_safe(v) for v in value]
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, type):
+        return f"{value.__module__}.{value.__qualname__}"
+    return repr(value)
+
+
+def write_run_files(res: Resolved, run_dir: Path, argv: Sequence[str] | None) -> None:
+    """config.yml (resolved), command.txt (appended), versions.json."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    config = {
+        "config": dataclasses.asdict(res.cfg),
+        "derived": {
+            "robot": res.robot,
+            "control_hz": res.control_hz,
+            "physics_hz": 1000.0,
+            "max_episode_steps": res.max_episode_steps,
+            "steps": res.steps,
+            "n_envs": res.n_envs,
+            "vec_normalize": res.normalize_kwargs,
+        },
+        "hyperparams": {**res.algo_kwargs, **res.special},
+    }
+    (run_dir / "config.yml").write_text(yaml.safe_dump(_yaml_safe(config), sort_keys=False))
+    args = list(sys.argv[1:] if argv is None else argv)
+    line = shlex.join([sys.executable, "-m", "train.train", *args])
+    with (run_dir / "command.txt").open("a") as fh:
+        fh.write(line + "\n")
+    (run_dir / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
+
+
+def prune_replay_buffers(folder: Path, keep_steps: int) -> None:
+    """Delete the checkpoint replay buffers of ``folder`` older than ``keep_steps``.
+
+    A replay buffer is saved whole (SAC's default 300 000 transitions of the residual
+    TwoLink env: ~60 MB), so only the newest one, the one ``--resume`` uses, is kept.
+    """
+    for path in folder.glob(f"{_CHECKPOINT_PREFIX}_replay_buffer_*_steps.pkl"):
+        m = _REPLAY_RE.match(path.name)
+        if m and int(m.group(1)) < keep_steps:
+            path.unlink()
+
+
+class PruningCheckpointCallback(CheckpointCallback):
+    """SB3's CheckpointCallback that keeps only the newest replay buffer."""
+
+    def _on_step(self) -> bool:
+        result = super()._on_step()
+        if self.n_calls % self.save_freq == 0 and self.save_replay_buffer:
+            prune_replay_buffers(Path(self.save_path), self.num_timesteps)
+        return result
+
+
+def _save_final(model: BaseAlgorithm, train_env: VecEnv, run_dir: Path) -> None:
+    """model.zip / vecnormalize.pkl, and the same state as a checkpoint for --resume."""
+    steps = model.num_timesteps
+    ckpt = run_dir / "checkpoints"
+    ckpt.mkdir(parents=True, exist_ok=True)
+    model.save(run_dir / "model.zip")
+    model.save(ckpt / f"{_CHECKPOINT_PREFIX}_{steps}_steps.zip")
+    if isinstance(model, OffPolicyAlgorithm):
+        model.save_replay_buffer(ckpt / f"{_CHECKPOINT_PREFIX}_replay_buffer_{steps}_steps.pkl")
+        prune_replay_buffers(ckpt, steps)
+    if isinstance(train_env, VecNormalize):
+        train_env.save(str(run_dir / "vecnormalize.pkl"))
+        train_env.save(str(ckpt / f"{_CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"))
+
+
+def _load_checkpoint(
+    res: Resolved, run_dir: Path, train_env: VecEnv, eval_env: VecEnv
+) -> tuple[BaseAlgorithm, VecEnv]:
+    found = latest_checkpoint(run_dir)
+    assert found is not None  # validate() checked
+    steps, path = found
+    ckpt = run_dir / "checkpoints"
+    vecnorm = ckpt / f"{_CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"
+    if res.normalize_kwargs is not None:
+        if not vecnorm.exists():
+            raise TrainConfigError(f"--resume: {vecnorm} is missing")
+        assert isinstance(train_env, VecNormalize) and isinstance(eval_env, VecNormalize)
+        train_env = VecNormalize.load(str(vecnorm), train_env.venv)
+        train_env.training = True
+        eval_env.obs_rms = train_env.obs_rms.copy()
+    c = res.cfg
+    model = ALGOS[c.algo].load(
+        path,
+        env=train_env,
+        device=c.device,
+        tensorboard_log=str(run_dir / "tb") if c.tensorboard else None,
+        print_system_info=False,
+    )
+    replay = ckpt / f"{_CHECKPOINT_PREFIX}_replay_buffer_{steps}_steps.pkl"
+    if isinstance(model, OffPolicyAlgorithm) and replay.exists():
+        model.load_replay_buffer(replay)
+    return model, train_env
+
+
+def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
+    """Validate ``cfg``, build the envs and the model (or resume), train, save.
+
+    Raises:
+        TrainConfigError: a bad config, before any env is built or any file written.
+    """
+    res = validate(cfg)
+    run_dir = Path(cfg.out)
+    torch.set_num_threads(cfg.torch_threads)
+    write_run_files(res, run_dir, argv)
+    start_steps = 0 if not cfg.resume else latest_checkpoint(run_dir)[0]  # type: ignore[index]
+    train_env, eval_env = make_envs(res, run_dir, session=f"from_{start_steps}")
+    try:
+        if cfg.resume:
+            model, train_env = _load_checkpoint(res, run_dir, train_env, eval_env)
+        else:
+            kwargs = dict(res.algo_kwargs)
+            noise = _action_noise(res.special, int(np.prod(train_env.action_space.shape)))
+            if noise is not None:
+                kwargs["action_noise"] = noise
+            model = ALGOS[cfg.algo](
+                env=train_env,
+                tensorboard_log=str(run_dir / "tb") if cfg.tensorboard else None,
+                verbose=cfg.verbose,
+                seed=cfg.seed,
+                device=cfg.device,
+                **kwargs,
+            )
+            if cfg.zero_init_residual:
+                zero_init_actor(model)
+        # An explicit logger in the run folder: without one SB3 creates /tmp/SB3-<date>.
+        formats = (
+            ["csv"]
+            + (["stdout"] if cfg.verbose else [])
+            + (["tensorboard"] if cfg.tensorboard else [])
+        )
+        model.set_logger(configure_logger(str(run_dir / "tb" / f"from_{start_steps}"), formats))
+        callbacks: list[BaseCallback] = []
+        if cfg.checkpoint_freq > 0:
+            callbacks.append(
+                PruningCheckpointCallback(
+                    save_freq=max(cfg.checkpoint_freq // res.n_envs, 1),
+                    save_path=str(run_dir / "checkpoints"),
+                    name_prefix=_CHECKPOINT_PREFIX,
+                    save_replay_buffer=True,
+                    save_vecnormalize=True,
+                )
+            )
+        if cfg.eval_freq > 0:
+            callbacks.append(
+                EvalCallback(
+                    eval_env,
+                    n_eval_episodes=cfg.eval_episodes,
+                    eval_freq=max(cfg.eval_freq // res.n_envs, 1),
+                    best_model_save_path=str(run_dir),
+                    log_path=str(run_dir / "eval" / f"from_{start_steps}"),
+                    deterministic=True,
+                    verbose=cfg.verbose,
+                )
+            )
+        model.learn(
+            total_timesteps=res.steps,
+            callback=callbacks,
+            reset_num_timesteps=not cfg.resume,
+            tb_log_name=cfg.algo,
+            progress_bar=cfg.progress_bar,
+        )
+        _save_final(model, train_env, run_dir)
+    finally:
+        train_env.close()
+        eval_env.close()
+    return TrainResult(model, run_dir, model.num_timesteps)
+
+
+# -- CLI ---------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    """The argparse parser of ``python -m train.train``."""
+    d = TrainConfig(out="")
+    p = argparse.ArgumentParser(
+        prog="python -m train.train",
+        description="Train SAC/TD3/PPO on a ptrack_gym env, pure or residual (docs/rl.md).",
+    )
+    p.add_argument("--algo", choices=sorted(ALGOS), default=d.algo)
+    p.add_argument("--env", dest="env_id", default=d.env_id, help="a ptrack_gym env id")
+    p.add_argument("--residual", choices=RESIDUAL_CHOICES, default=d.residual)
+    p.add_argument("--scale-fraction", type=float, default=d.scale_fraction)
+    p.add_argument("--disturbance", default=d.disturbance, help="none | preset | preset:level")
+    p.add_argument("--eval-disturbance", default=None, help="default: --disturbance")
+    p.add_argument("--steps", type=int, default=None, help="default: the YAML's n_timesteps")
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--out", required=True, help="run folder")
+    p.add_argument("--hyperparams", default=None, help="YAML merged over the packaged one")
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="hyperparameter override (repeatable), e.g. --set learning_rate=1e-3",
+    )
+    p.add_argument("--n-envs", type=int, default=None)
+    p.add_argument(
+        "--vec-normalize",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="default: the YAML's 'normalize'",
+    )
+    p.add_argument("--eval-freq", type=int, default=d.eval_freq)
+    p.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
+    p.add_argument("--checkpoint-freq", type=int, default=d.checkpoint_freq)
+    p.add_argument("--resume", action="store_true")
+    p.add_argument("--zero-init-residual", action="store_true")
+    p.add_argument("--progress-bar", action="store_true")
+    p.add_argument("--tensorboard", action="store_true")
+    p.add_argument("--control-hz", type=float, default=None, help="default: per robot")
+    p.add_argument("--episode-s", type=float, default=d.episode_s)
+    p.add_argument("--start", choices=("on_path", "rest_near_path"), default=d.start)
+    p.add_argument("--torch-threads", type=int, default=d.torch_threads)
+    p.add_argument("--device", default=d.device)
+    p.add_argument("--verbose", type=int, default=d.verbose)
+    return p
+
+
+def parse_args(argv: Sequence[str] | None = None) -> TrainConfig:
+    """A :class:`TrainConfig` from command-line arguments (argparse errors exit with 2)."""
+    parser = build_parser()
+    ns = parser.parse_args(argv)
+    values = vars(ns)
+    try:
+        values["overrides"] = parse_set(values["overrides"])
+    except TrainConfigError as exc:
+        parser.error(str(exc))
+    return TrainConfig(**values)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """CLI entry point: parse, train, print where the run went."""
+    cfg = parse_args(argv)
+    result = run(cfg, argv)
+    print(f"trained {result.num_timesteps} steps; run folder: {result.run_dir}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
