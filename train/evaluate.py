@@ -10,8 +10,8 @@ state and disturbance schedule. Writes to ``--out``:
 * ``summary.csv`` — per controller × disturbance × level: mean and IQM of the main metric
   with 95% bootstrap intervals, failure rate, paired difference to the reference;
 * ``robustness_<metric>.png``, ``failures.png``, ``example_<controller>.png``;
-* with ``--video``, ``videos/<controller>/<controller>-episode-0.mp4``: the example episode, recorded
-  through Gymnasium's ``RecordVideo`` (headless ``rgb_array``).
+* with ``--video``, ``videos/<controller>/<controller>-episode-0.mp4``: the example
+  episode, recorded through Gymnasium's ``RecordVideo`` (headless ``rgb_array``).
 
 Episodes run in ``--workers`` processes (default: the number of cores), or on Ray with
 ``--backend ray`` (``--ray-address`` for a cluster; a local instance by default).
