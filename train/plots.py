@@ -77,14 +77,21 @@ def example_plot(trace: dict[str, np.ndarray], title: str, path: Path) -> None:
     axes[0].legend(fontsize=7, ncol=2)
     axes[1].semilogy(t, np.maximum(trace["path_distance"], 1e-12))
     axes[1].set_ylabel("path distance (rad)")
-    names = ["H + W_r(σ)", "H_r", "φ", "ψ", "E (storage)", "H(q, q̇)"]
+    # The passivity controller's storage function and its terms (left axis; NaN for the
+    # other controllers) and the arm's energy H(q, q̇) (right axis: ~100× larger).
+    names = ["H + W_r(σ)", "H_r", "φ", "ψ", "E (storage)"]
     for k, name in enumerate(names):
         series = trace["energy"][:, k]
         if np.all(np.isfinite(series)):
             axes[2].plot(t, series, label=name)
-    axes[2].set_ylabel("J")
+    axes[2].set_ylabel("storage terms (J)")
+    twin = axes[2].twinx()
+    twin.plot(t, trace["energy"][:, 5], color="0.5", ls=":", label="H(q, q̇)")
+    twin.set_ylabel("H(q, q̇) (J)")
+    twin.legend(fontsize=7, loc="lower right")
     axes[2].set_xlabel("t (s)")
-    axes[2].legend(fontsize=7, ncol=3)
+    if axes[2].get_lines():
+        axes[2].legend(fontsize=7, ncol=3)
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

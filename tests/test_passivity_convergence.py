@@ -1,0 +1,73 @@
+"""Convergence of the passivity controller with its default gains, from rest off the path.
+
+Claim (issue 3): from 10 seeded starts at rest, 0.15 rad off the path per joint (the
+env's ``start="rest_near_path"`` sampler, seeds 0–9), path distance < 1e-3 rad and
+|ṡ − 1| < 1e-2 hold from a stated time to the end of the run in ≥ 9 of 10.
+
+Measured (``docs/passivity_gain_study.md``): two-link 10/10, the last converged by 13.1 s;
+iiwa 7/10 on these seeds — three starts stall at ṡ ≈ 0.02 with the arm 0.07–0.09 rad off
+the path, a known trap of the law (no gravity compensation at rest, the pump vanishes with
+speed). The iiwa test therefore states the requirement and is marked as an expected
+failure; it turns into an error (strict) the day the law or the gains meet it.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import pytest
+
+import ptrack_gym  # noqa: F401
+from agents.factory import make_controller
+from agents.policy import ControllerPolicy
+
+
+def converged_by(env_id: str, seed: int, settle_s: float, hold_s: float) -> bool:
+    """Whether the run of ``seed`` meets both thresholds from ``settle_s`` to the end
+    (``settle_s + hold_s``)."""
+    env = gym.make(
+        env_id,
+        start="rest_near_path",
+        start_offset_rad=0.15,
+        max_episode_steps=round((settle_s + hold_s) * 1000),
+    )
+    ctrl = make_controller("passivity", env)
+    policy = ControllerPolicy(env, ctrl)
+    obs, _ = env.reset(seed=seed)
+    policy.reset_controller(obs)
+    ok = True
+    while True:
+        obs, _, terminated, truncated, info = env.step(policy.action(obs))
+        if info["t_s"] >= settle_s - 1e-9:
+            sd = ctrl.diagnostics()["sd"]
+            ok &= info["path_distance"] < 1e-3 and abs(sd - 1.0) < 1e-2
+        if terminated:
+            ok = False
+        if terminated or truncated or not ok:
+            break
+    env.close()
+    return ok
+
+
+def count_converged(env_id: str, settle_s: float, hold_s: float, needed: int) -> int:
+    """Converged starts among seeds 0–9; stops as soon as ``needed`` is out of reach."""
+    hits, misses = 0, 0
+    for seed in range(10):
+        if converged_by(env_id, seed, settle_s, hold_s):
+            hits += 1
+        else:
+            misses += 1
+        if misses > 10 - needed:
+            break
+    return hits
+
+
+def test_two_link_converges_from_rest_within_20_s() -> None:
+    assert count_converged("ptrack_gym/TwoLinkTrack-v0", settle_s=20.0, hold_s=5.0, needed=9) >= 9
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="measured 7/10 on env seeds 0-9 (three stall at sd ~ 0.02): the law's stall trap",
+)
+def test_iiwa_converges_from_rest_within_30_s() -> None:
+    assert count_converged("ptrack_gym/IiwaTrack-v0", settle_s=30.0, hold_s=5.0, needed=9) >= 9
