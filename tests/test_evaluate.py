@@ -163,3 +163,27 @@ def test_paired_controllers_meet_identical_disturbances() -> None:
     np.testing.assert_array_equal(a, b)
     assert np.abs(a).max() > 0
     assert str(sched_a) == str(sched_b)
+
+
+def test_a_trained_residual_model_is_evaluated_like_a_controller(tmp_path) -> None:
+    """``sb3:<run folder>`` runs a model of ``train.train`` in the sweep (a 200-step SAC
+    residual on passivity: what it learned is irrelevant here, the plumbing is not)."""
+    from train.train import main as train_main
+
+    run_dir = tmp_path / "sac_res"
+    train_main(
+        ["--algo", "sac", "--residual", "passivity", "--steps", "200", "--out", str(run_dir),
+         "--episode-s", "0.2", "--eval-freq", "0", "--checkpoint-freq", "0",
+         "--set", "learning_starts=50", "--set", "policy_kwargs=dict(net_arch=[16])"]
+    )  # fmt: skip
+    cfg = tiny(tmp_path, "with_model", "workers=1", f"controllers=[computed_torque, sb3:{run_dir}]")
+    out = run_sweep(cfg, progress=False)
+    df = pd.read_csv(out / "episodes.csv")
+    model_rows = df[df["controller"] == f"sb3:{run_dir}"]
+    assert len(model_rows) == 4
+    assert np.isfinite(model_rows["path_dist_rms"]).all()
+    # At its training rate of 250 Hz, 0.4 s is 100 steps.
+    assert (model_rows["steps"] == 100).all()
+    assert (out / "example_sb3-sac_res.png").exists()
+    with pytest.raises(InvalidConfigError, match="does not exist"):
+        tiny(tmp_path, "x", f"controllers=[computed_torque, sb3:{tmp_path / 'nope'}]")

@@ -7,20 +7,31 @@ same function and give the same rows.
 Pairing: the env's reset seed depends only on (seed, episode), never on the controller,
 so every controller meets the same start state and — through the env's own disturbance
 stream — the same disturbance schedule.
+
+Controllers are names of ``agents.factory`` or ``sb3:<run folder>``: a model trained by
+``python -m train.train`` (pure or residual), rebuilt from the run's ``config.yml`` — its
+residual base, scale and control rate — with its ``vecnormalize.pkl`` statistics when
+present, acting deterministically. It runs at its training control rate, so it meets the
+same disturbance schedule in time (onsets, frequencies) but per-step noise draws differ.
 """
 
 from __future__ import annotations
 
+import pickle
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import yaml
 
 import ptrack_gym  # noqa: F401  (registers the envs)
 from agents.factory import make_controller
 from agents.policy import ControllerPolicy
+from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.metrics import EpisodeRecord, episode_metrics
 
 #: Columns identifying an episode, in the CSV's order.
@@ -84,6 +95,66 @@ def _env(settings: EpisodeSettings, disturbance: str, level: float) -> gym.Env[A
     return _ENV_CACHE[key]
 
 
+SB3_PREFIX = "sb3:"
+
+
+def label(controller: str) -> str:
+    """A file-name-safe label of a controller name (``sb3:runs/x`` → ``sb3-x``)."""
+    if controller.startswith(SB3_PREFIX):
+        return "sb3-" + Path(controller[len(SB3_PREFIX) :]).name
+    return controller
+
+
+def check_sb3_run(controller: str, env_id: str) -> Path:
+    """The run folder of an ``sb3:`` controller, checked; raises InvalidConfigError."""
+    run_dir = Path(controller[len(SB3_PREFIX) :])
+    for name in ("config.yml", "model.zip"):
+        if not (run_dir / name).exists():
+            raise InvalidConfigError(f"{controller}: {run_dir / name} does not exist")
+    trained_on = yaml.safe_load((run_dir / "config.yml").read_text())["config"]["env_id"]
+    if trained_on != env_id:
+        raise InvalidConfigError(f"{controller} was trained on {trained_on}, not {env_id}")
+    return run_dir
+
+
+_SB3_CACHE: dict[tuple[Any, ...], tuple[gym.Env[Any, Any], Callable[[np.ndarray], np.ndarray]]] = {}
+
+
+def _sb3_policy(
+    controller: str, settings: EpisodeSettings, disturbance: str, level: float
+) -> tuple[gym.Env[Any, Any], Callable[[np.ndarray], np.ndarray]]:
+    """(env, act) for a trained model; cached per process like the envs."""
+    key = (controller, settings, disturbance, level)
+    if key in _SB3_CACHE:
+        return _SB3_CACHE[key]
+    from train.train import ALGOS, build_env  # torch and SB3 only when a model is evaluated
+
+    run_dir = check_sb3_run(controller, settings.env_id)
+    cfg = yaml.safe_load((run_dir / "config.yml").read_text())
+    c, derived = cfg["config"], cfg["derived"]
+    env = build_env(
+        settings.env_id,
+        c["residual"],
+        c["scale_fraction"],
+        derived["control_hz"],
+        round(settings.episode_s * derived["control_hz"]),
+        settings.start,
+        None if disturbance == "none" else f"{disturbance}:{level}",
+    )
+    model = ALGOS[c["algo"]].load(str(run_dir / "model.zip"), device="cpu")
+    stats = None
+    if (run_dir / "vecnormalize.pkl").exists():
+        with (run_dir / "vecnormalize.pkl").open("rb") as fh:
+            stats = pickle.load(fh)  # a VecNormalize without its venv: normalize_obs works
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        x = stats.normalize_obs(obs) if stats is not None else obs
+        return model.predict(x, deterministic=True)[0]
+
+    _SB3_CACHE[key] = (env, act)
+    return env, act
+
+
 def _first_impulse_end(schedule: list[dict[str, Any]]) -> float | None:
     ends = [d["onset_s"] + d["duration_s"] for d in schedule if d["type"] in ("impulse", "push")]
     return min(ends) if ends else None
@@ -95,17 +166,22 @@ def run_episode(
     """Run ``task`` and return its CSV row (keys + metrics + wall time) and, with
     ``keep_trace``, the time series for the example-episode plots."""
     wall0 = time.perf_counter()
-    env = _env(settings, task.disturbance, task.level)
+    diagnostics: Callable[[], dict[str, float]]
+    if task.controller.startswith(SB3_PREFIX):
+        env, act = _sb3_policy(task.controller, settings, task.disturbance, task.level)
+        diagnostics = dict
+        obs, _ = env.reset(seed=task.reset_seed)
+    else:
+        env = _env(settings, task.disturbance, task.level)
+        policy = ControllerPolicy(env, make_controller(task.controller, env))
+        act, diagnostics = policy.action, lambda: policy.last_diagnostics
+        obs, _ = env.reset(seed=task.reset_seed)
+        policy.reset_controller(obs)
     u = env.unwrapped
-    controller = make_controller(task.controller, env)
-    policy = ControllerPolicy(env, controller)
-    obs, _ = env.reset(seed=task.reset_seed)
-    policy.reset_controller(obs)
     rows: dict[str, list[Any]] = {k: [] for k in ("t", "q", "qd", "s_ref", "tau", "d", "energy")}
     unstable, info = False, {}
     while True:
-        action = policy.action(obs)
-        obs, _, terminated, truncated, info = env.step(action)
+        obs, _, terminated, truncated, info = env.step(act(obs))
         q, qd = u.joint_state()
         rows["t"].append(info["t_s"])
         rows["q"].append(q)
@@ -114,7 +190,7 @@ def run_episode(
         rows["tau"].append(info["tau_nm"])
         if keep_trace:
             rows["d"].append(info["path_distance"])
-            diag = policy.last_diagnostics
+            diag = diagnostics()
             rows["energy"].append(
                 [
                     diag.get("h_plus_w", np.nan),

@@ -40,7 +40,14 @@ from tqdm import tqdm
 
 from ptrack_gym.disturbances import PRESETS
 from ptrack_gym.errors import InvalidConfigError, PtrackError
-from train.eval_episode import EpisodeSettings, Task, run_episode
+from train.eval_episode import (
+    SB3_PREFIX,
+    EpisodeSettings,
+    Task,
+    check_sb3_run,
+    label,
+    run_episode,
+)
 from train.results import (
     EpisodeWriter,
     done_keys,
@@ -62,7 +69,7 @@ class EvalConfig:
     controllers: list[str] = field(
         default_factory=lambda: ["passivity", "computed_torque", "pd_gravity", "slotine_li"]
     )
-    """Controller names of ``agents.factory``."""
+    """Controller names of ``agents.factory``, or ``sb3:<run folder>`` of ``train.train``."""
     disturbances: list[str] = field(
         default_factory=lambda: ["none", "impulse", "periodic", "payload"]
     )
@@ -107,9 +114,12 @@ class EvalConfig:
         from agents.factory import CONTROLLER_NAMES
 
         for c in self.controllers:
-            if c not in CONTROLLER_NAMES:
+            if c.startswith(SB3_PREFIX):
+                check_sb3_run(c, self.env_id)
+            elif c not in CONTROLLER_NAMES:
                 raise InvalidConfigError(
-                    f"controllers: unknown {c!r}; known {list(CONTROLLER_NAMES)}"
+                    f"controllers: unknown {c!r}; known {list(CONTROLLER_NAMES)} "
+                    "or 'sb3:<run folder>'"
                 )
         for d in self.disturbances:
             if d not in PRESETS:
@@ -230,8 +240,11 @@ def _run_ray(
             ray.shutdown()
 
 
-def run_sweep(cfg: EvalConfig, resume: bool = False, progress: bool = True) -> Path:
-    """Run (or resume) the sweep of ``cfg``; return the output folder."""
+def run_sweep(
+    cfg: EvalConfig, resume: bool = False, progress: bool = True, show: bool = True
+) -> Path:
+    """Run (or resume) the sweep of ``cfg``; return the output folder. ``show`` prints
+    the summary table."""
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     episodes = out / "episodes.csv"
@@ -264,11 +277,11 @@ def run_sweep(cfg: EvalConfig, resume: bool = False, progress: bool = True) -> P
         ):
             writer.write(row)
             if trace is not None:
-                np.savez_compressed(out / f"trace_{task.controller}.npz", **trace)
+                np.savez_compressed(out / f"trace_{label(task.controller)}.npz", **trace)
                 traces[task.controller] = trace
     finally:
         writer.close()
-    _finish(cfg, out)
+    _finish(cfg, out, show)
     return out
 
 
@@ -282,13 +295,14 @@ def _example_condition(cfg: EvalConfig) -> tuple[str, float, int, int]:
     return (disturbed[0], float(levels[len(levels) // 2]), 0, 0)
 
 
-def _finish(cfg: EvalConfig, out: Path) -> None:
+def _finish(cfg: EvalConfig, out: Path, show: bool = True) -> None:
     df = load_frame(out / "episodes.csv")
     summary = summarize(df, cfg.metric, cfg.reference, cfg.bootstrap_resamples)
     summary.to_csv(out / "summary.csv", index=False)
     table = format_table(summary, cfg.metric)
     (out / "summary.md").write_text(table + "\n")
-    print(table)
+    if show:
+        print(table)
     if cfg.plots:
         from train.plots import example_plot, failure_plot, robustness_plot
 
@@ -296,20 +310,20 @@ def _finish(cfg: EvalConfig, out: Path) -> None:
         failure_plot(df, out / "failures.png")
         cond = _example_condition(cfg)
         for ctrl in cfg.controllers:
-            path = out / f"trace_{ctrl}.npz"
+            path = out / f"trace_{label(ctrl)}.npz"
             if path.exists():
                 with np.load(path) as z:
                     trace = {k: z[k] for k in z.files}
                 example_plot(
                     trace,
                     f"{ctrl}: {cond[0]} level {cond[1]:g}, seed 0",
-                    out / f"example_{ctrl}.png",
+                    out / f"example_{label(ctrl)}.png",
                 )
     if cfg.video:
         from train.video import record_episode
 
         dist, level, seed, episode = _example_condition(cfg)
-        for ctrl in cfg.controllers:
+        for ctrl in [c for c in cfg.controllers if not c.startswith(SB3_PREFIX)]:
             record_episode(
                 cfg.env_id,
                 ctrl,
