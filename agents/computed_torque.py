@@ -10,11 +10,9 @@ With the exact model the closed loop is linear and decoupled, ë + K_d ė + K_p 
 
 from __future__ import annotations
 
-import numpy as np
-
 from agents.base import FloatArray
 from agents.gains import ComputedTorqueGains, gain_vector
-from ptrack_gym.errors import InvalidConfigError
+from agents.reference_clock import ReferenceClock, error_diagnostics
 from ptrack_gym.paths import ReferencePath
 from ptrack_gym.robots.model import RobotModel
 
@@ -37,42 +35,29 @@ class ComputedTorqueController:
     def __init__(self, model: RobotModel, path: ReferencePath, gains: ComputedTorqueGains) -> None:
         if not isinstance(gains, ComputedTorqueGains):
             raise TypeError(f"gains must be ComputedTorqueGains, got {type(gains).__name__}")
-        if path.n != model.n:
-            raise InvalidConfigError(f"path has {path.n} joints, model has {model.n}")
+        self.clock = ReferenceClock(model, path)
         self.model = model
         self.path = path
         self.gains = gains
         self.n = model.n
         self.kp = gain_vector(gains.kp_1_s2, self.n, "kp_1_s2")  # (n,) 1/s²
         self.kd = gain_vector(gains.kd_1_s, self.n, "kd_1_s")  # (n,) 1/s
-        self._s: float | None = None
         self._diag: dict[str, float] = {}
 
     def reset(self, q: FloatArray, qd: FloatArray, s_ref: float) -> None:
         """Start the clock at s = ``s_ref`` (s)."""
-        self._s = float(s_ref)
-        self._diag = {"s": self._s}
+        self.clock.reset(s_ref)
+        self._diag = {"s": float(s_ref)}
 
     def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
         """τ = ID(q, q̇, q̈_r + K_d ė + K_p e) (N·m), shape (n,); then s ← s + dt.
 
         One inverse-dynamics call gives M(q) v + C(q, q̇) q̇ + g(q) exactly.
         """
-        if self._s is None:
-            raise RuntimeError("call reset() before step()")
-        if not (np.isfinite(dt) and dt > 0.0):
-            raise InvalidConfigError(f"dt must be a positive number of seconds, got {dt!r}")
-        q_r, qd_r, qdd_r = self.path.evaluate(self._s)
-        e = q_r - q  # (n,) rad
-        ed = qd_r - qd  # (n,) rad/s
-        v = qdd_r + self.kd * ed + self.kp * e  # (n,) rad/s²
+        err = self.clock.errors(q, qd, dt)
+        v = err.qdd_r + self.kd * err.ed + self.kp * err.e  # (n,) rad/s²
         tau = self.model.inverse_dynamics(q, qd, v)
-        self._s += float(dt)
-        self._diag = {
-            "s": self._s,
-            "tracking_error": float(np.linalg.norm(e)),
-            "velocity_error": float(np.linalg.norm(ed)),
-        }
+        self._diag = error_diagnostics(self.clock.advance(dt), err)
         return tau
 
     def diagnostics(self) -> dict[str, float]:

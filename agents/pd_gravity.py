@@ -13,11 +13,9 @@ the size of that steady error on each robot.
 
 from __future__ import annotations
 
-import numpy as np
-
 from agents.base import FloatArray
 from agents.gains import PDGravityGains, gain_vector
-from ptrack_gym.errors import InvalidConfigError
+from agents.reference_clock import ReferenceClock, error_diagnostics
 from ptrack_gym.paths import ReferencePath
 from ptrack_gym.robots.model import RobotModel
 
@@ -40,38 +38,25 @@ class PDGravityController:
     def __init__(self, model: RobotModel, path: ReferencePath, gains: PDGravityGains) -> None:
         if not isinstance(gains, PDGravityGains):
             raise TypeError(f"gains must be PDGravityGains, got {type(gains).__name__}")
-        if path.n != model.n:
-            raise InvalidConfigError(f"path has {path.n} joints, model has {model.n}")
+        self.clock = ReferenceClock(model, path)
         self.model = model
         self.path = path
         self.gains = gains
         self.n = model.n
         self.kp = gain_vector(gains.kp_nm_rad, self.n, "kp_nm_rad")  # (n,) N·m/rad
         self.kd = gain_vector(gains.kd_nms_rad, self.n, "kd_nms_rad")  # (n,) N·m·s/rad
-        self._s: float | None = None
         self._diag: dict[str, float] = {}
 
     def reset(self, q: FloatArray, qd: FloatArray, s_ref: float) -> None:
         """Start the clock at s = ``s_ref`` (s)."""
-        self._s = float(s_ref)
-        self._diag = {"s": self._s}
+        self.clock.reset(s_ref)
+        self._diag = {"s": float(s_ref)}
 
     def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
         """τ = K_p e + K_d ė + g(q) (N·m), shape (n,); then s ← s + dt."""
-        if self._s is None:
-            raise RuntimeError("call reset() before step()")
-        if not (np.isfinite(dt) and dt > 0.0):
-            raise InvalidConfigError(f"dt must be a positive number of seconds, got {dt!r}")
-        q_r, qd_r, _ = self.path.evaluate(self._s)
-        e = q_r - q  # (n,) rad
-        ed = qd_r - qd  # (n,) rad/s
-        tau = self.kp * e + self.kd * ed + self.model.gravity(q)
-        self._s += float(dt)
-        self._diag = {
-            "s": self._s,
-            "tracking_error": float(np.linalg.norm(e)),
-            "velocity_error": float(np.linalg.norm(ed)),
-        }
+        err = self.clock.errors(q, qd, dt)
+        tau = self.kp * err.e + self.kd * err.ed + self.model.gravity(q)
+        self._diag = error_diagnostics(self.clock.advance(dt), err)
         return tau
 
     def diagnostics(self) -> dict[str, float]:

@@ -40,7 +40,7 @@ import numpy as np
 
 from agents.base import FloatArray
 from agents.gains import SlotineLiGains, gain_vector
-from ptrack_gym.errors import InvalidConfigError
+from agents.reference_clock import ReferenceClock, error_diagnostics
 from ptrack_gym.paths import ReferencePath
 from ptrack_gym.robots.model import RobotModel
 
@@ -84,8 +84,7 @@ class SlotineLiController:
     def __init__(self, model: RobotModel, path: ReferencePath, gains: SlotineLiGains) -> None:
         if not isinstance(gains, SlotineLiGains):
             raise TypeError(f"gains must be SlotineLiGains, got {type(gains).__name__}")
-        if path.n != model.n:
-            raise InvalidConfigError(f"path has {path.n} joints, model has {model.n}")
+        self.clock = ReferenceClock(model, path)
         self.model = model
         self.path = path
         self.gains = gains
@@ -93,7 +92,6 @@ class SlotineLiController:
         self.lam = gain_vector(gains.lambda_1_s, self.n, "lambda_1_s")  # (n,) 1/s
         self.kd = gain_vector(gains.kd_nms_rad, self.n, "kd_nms_rad")  # (n,) N·m·s/rad
         self._zeros = np.zeros(self.n)
-        self._s: float | None = None
         self._diag: dict[str, float] = {}
 
     def lyapunov(self, q: FloatArray, qd: FloatArray, s: float) -> float:
@@ -105,20 +103,15 @@ class SlotineLiController:
 
     def reset(self, q: FloatArray, qd: FloatArray, s_ref: float) -> None:
         """Start the clock at s = ``s_ref`` (s)."""
-        self._s = float(s_ref)
-        self._diag = {"s": self._s}
+        self.clock.reset(s_ref)
+        self._diag = {"s": float(s_ref)}
 
     def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
         """τ = M q̈_ref + C(q, q̇) q̇_ref + g + K_D r (N·m), shape (n,); then s ← s + dt."""
-        if self._s is None:
-            raise RuntimeError("call reset() before step()")
-        if not (np.isfinite(dt) and dt > 0.0):
-            raise InvalidConfigError(f"dt must be a positive number of seconds, got {dt!r}")
-        q_r, qd_r, qdd_r = self.path.evaluate(self._s)
-        e = q_r - q  # (n,) rad
-        ed = qd_r - qd  # (n,) rad/s
-        qd_ref = qd_r + self.lam * e  # (n,) rad/s
-        qdd_ref = qdd_r + self.lam * ed  # (n,) rad/s²
+        err = self.clock.errors(q, qd, dt)
+        e, ed = err.e, err.ed
+        qd_ref = err.qd_r + self.lam * e  # (n,) rad/s
+        qdd_ref = err.qdd_r + self.lam * ed  # (n,) rad/s²
         r = ed + self.lam * e  # (n,) rad/s, = qd_ref − qd
         tau = (
             self.model.inverse_dynamics(q, self._zeros, qdd_ref)  # M q̈_ref + g
@@ -126,11 +119,8 @@ class SlotineLiController:
             + self.kd * r
         )
         mass = self.model.mass_matrix(q)  # (n, n)
-        self._s += float(dt)
         self._diag = {
-            "s": self._s,
-            "tracking_error": float(np.linalg.norm(e)),
-            "velocity_error": float(np.linalg.norm(ed)),
+            **error_diagnostics(self.clock.advance(dt), err),
             "sliding_error": float(np.linalg.norm(r)),
             "lyapunov_j": float(0.5 * r @ mass @ r + e @ (self.lam * self.kd * e)),
         }

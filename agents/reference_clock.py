@@ -1,0 +1,71 @@
+"""The time-indexed reference shared by the classical baselines.
+
+Computed torque, PD + gravity and Slotine–Li all track q_r(s) with s = s₀ + t: a clock
+set to the env's reference phase at ``reset`` and advanced by ``dt`` after each step.
+:class:`ReferenceClock` is that clock and the errors against it, composed into each
+controller so the bookkeeping (and its checks) exists once.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from agents.base import FloatArray
+from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.paths import ReferencePath
+from ptrack_gym.robots.model import RobotModel
+
+
+class ReferenceErrors(NamedTuple):
+    """The reference at the clock's s and the errors of a measured state against it."""
+
+    q_r: FloatArray  # (n,) rad
+    qd_r: FloatArray  # (n,) rad/s
+    qdd_r: FloatArray  # (n,) rad/s²
+    e: FloatArray  # q_r − q, (n,) rad
+    ed: FloatArray  # q_r' − q̇, (n,) rad/s
+
+
+class ReferenceClock:
+    """Clock s (s) of a time-indexed reference path.
+
+    Raises:
+        InvalidConfigError: (a ``ValueError``) a path whose joint count is not the model's.
+    """
+
+    def __init__(self, model: RobotModel, path: ReferencePath) -> None:
+        if path.n != model.n:
+            raise InvalidConfigError(f"path has {path.n} joints, model has {model.n}")
+        self.path = path
+        self.s: float | None = None
+
+    def reset(self, s_ref: float) -> None:
+        """Start the clock at s = ``s_ref`` (s)."""
+        self.s = float(s_ref)
+
+    def errors(self, q: FloatArray, qd: FloatArray, dt: float) -> ReferenceErrors:
+        """The reference at the current s and the errors of (q, q̇); checks that ``reset``
+        came first and that ``dt`` (s), the step about to be taken, is positive."""
+        if self.s is None:
+            raise RuntimeError("call reset() before step()")
+        if not (np.isfinite(dt) and dt > 0.0):
+            raise InvalidConfigError(f"dt must be a positive number of seconds, got {dt!r}")
+        q_r, qd_r, qdd_r = self.path.evaluate(self.s)
+        return ReferenceErrors(q_r, qd_r, qdd_r, q_r - q, qd_r - qd)
+
+    def advance(self, dt: float) -> float:
+        """s ← s + dt; returns the new s (s)."""
+        assert self.s is not None
+        self.s += float(dt)
+        return self.s
+
+
+def error_diagnostics(s: float, err: ReferenceErrors) -> dict[str, float]:
+    """The diagnostics every baseline reports: clock s, |e| (rad) and |ė| (rad/s)."""
+    return {
+        "s": s,
+        "tracking_error": float(np.linalg.norm(err.e)),
+        "velocity_error": float(np.linalg.norm(err.ed)),
+    }
