@@ -98,14 +98,21 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
     ## Info
     ``t_s`` (s), ``s_ref`` (s), ``path_distance`` (rad), ``path_s`` (s, the nearest
     path parameter), ``tracking_error`` (rad, |q_r(s₀+t) − q|), ``energy_j`` (H(q, q̇)
-    by the nominal model, J), ``tau_nm`` (applied torque), the reward terms, ``unstable``.
+    by the nominal model, J), ``tau_nm`` (commanded torque after clipping), the reward
+    terms, ``disturbance_torque_nm`` (joint-space disturbance torque of the last physics
+    sub-step, pushes as JᵀF), ``disturbance_work_j`` (∫ q̇ᵀτ_d since reset, J), ``unstable``.
+    Path distance, errors and energy use the true state; the observation holds the
+    *measured* state (sensing disturbances), as does ``measured_joint_state()``.
 
     ## Arguments
     ``robot`` ("two_link", "iiwa", "panda"); ``path`` ("default", "circle", "random",
     or a :class:`~ptrack_gym.paths.ReferencePath`); ``path_seed`` (for "random");
     ``physics_hz`` (1000), ``control_hz`` (1000); ``start``, ``start_noise_rad``,
-    ``start_offset_rad``; ``reward_weights``; ``unstable_penalty``; ``render_mode``
-    ("rgb_array" works headless); ``gui``. Unknown arguments raise ``TypeError``.
+    ``start_offset_rad``; ``reward_weights``; ``unstable_penalty``; ``disturbance`` (see
+    :mod:`ptrack_gym.disturbances`: a preset name, ``(preset, level)``, specs or a list);
+    ``horizon_s`` (the nominal episode length the disturbances draw onsets and energy
+    budgets for, 10 s); ``render_mode`` ("rgb_array" works headless); ``gui``. Unknown
+    arguments raise ``TypeError``.
 
     ## Version history
     v0: first release.
