@@ -140,6 +140,9 @@ class ImpulseTorque(Disturbance):
     at home by c·v (v a random unit vector of joint velocities) with the kinetic energy
     ½c²vᵀMv = energy_j, i.e. τ_d = c·M(q_home)v / duration; ``accel_rad_s2`` —
     τ_d = M(q_home)(α u); otherwise τ_d = a·τ_max ⊙ u (``fraction``), u a random unit vector.
+    The torque acts on the physics sub-steps that start inside [onset, onset + duration):
+    choose ``duration_s`` as a multiple of the physics step, or the delivered momentum is
+    rounded to whole sub-steps.
     """
 
     name: ClassVar[str] = "impulse"
@@ -210,6 +213,8 @@ class StepTorque(Disturbance):
 
     def __post_init__(self) -> None:
         _check_fraction(self.fraction, "fraction")
+        if self.energy_j is not None:
+            _check_fraction(self.energy_j, "energy_j")
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._onset = _draw(rng, self.onset_s)
@@ -240,6 +245,8 @@ class PeriodicTorque(Disturbance):
     def __post_init__(self) -> None:
         _check_fraction(self.fraction, "fraction")
         _check_fraction(self.frequency_hz, "frequency_hz")
+        if self.energy_j is not None:
+            _check_fraction(self.energy_j, "energy_j")
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._freq = _draw(rng, self.frequency_hz)
@@ -318,6 +325,8 @@ class Push(Disturbance):
         _check_fraction(self.force_n, "force_n")
         if not self.duration_s > 0:
             raise InvalidConfigError(f"duration_s must be > 0, got {self.duration_s!r}")
+        if self.energy_j is not None:
+            _check_fraction(self.energy_j, "energy_j")
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._onset = _draw(rng, self.onset_s)
@@ -334,7 +343,12 @@ class Push(Disturbance):
         return None
 
     def schedule(self) -> dict[str, Any]:
-        return {"onset_s": self._onset, "force_n": self._force.copy(), "link": self._link}
+        return {
+            "onset_s": self._onset,
+            "duration_s": self.duration_s,
+            "force_n": self._force.copy(),
+            "link": self._link,
+        }
 
 
 @dataclass

@@ -86,6 +86,7 @@ class EpisodeRecord:
     disturbance_work_j: float  # ∫ q̇ᵀ τ_d over the episode (J)
     unstable: bool
     impulse_end_s: float | None = None  # end of the first impulse/push, if any
+    intended_steps: int | None = None  # the episode's full length, for unstable episodes
 
 
 def episode_metrics(
@@ -108,11 +109,26 @@ def episode_metrics(
     * ``controller_work_j`` — Σ τ_kᵀ (q_{k+1} − q_k), ``disturbance_work_j``;
     * ``failed`` — 1 if unstable or the path distance ever exceeded
       ``failure_distance_rad`` (failed episodes are kept and counted, never dropped).
+
+    An unstable episode ends early and its last row is not a real pose (the env clips it);
+    that row is dropped and both error series are padded with ``failure_distance_rad`` up
+    to ``intended_steps``, so blowing up never scores better than staying near the path.
     """
+    if record.unstable and len(record.q) > 1:
+        record = EpisodeRecord(
+            t_s=record.t_s[:-1], q=record.q[:-1], qd=record.qd[:-1], s_ref=record.s_ref[:-1],
+            tau_nm=record.tau_nm[:-1], torque_limits_nm=record.torque_limits_nm,
+            disturbance_work_j=record.disturbance_work_j, unstable=True,
+            impulse_end_s=record.impulse_end_s, intended_steps=record.intended_steps,
+        )  # fmt: skip
     q, qd = record.q, record.qd
     dist, s_star = path_distances(tables, q)
     q_ref = tables.path.evaluate(record.s_ref)[0]
     time_err = np.linalg.norm(q_ref - q, axis=1)
+    if record.unstable:
+        missing = max((record.intended_steps or len(q)) - len(q), 1)
+        pad = np.full(missing, failure_distance_rad)
+        dist, time_err = np.concatenate([dist, pad]), np.concatenate([time_err, pad])
     k0 = int(len(q) * (1.0 - settle_fraction))
     ratio = speed_ratio(model, tables, q[k0:], qd[k0:], s_star[k0:])
     offset = phase_offset(s_star[k0:], record.s_ref[k0:], tables.period_s)

@@ -124,6 +124,11 @@ def test_corrupt_results_are_refused(full_run, tmp_path, mutate, match) -> None:
 @pytest.mark.parametrize(
     "override",
     [
+        "controllers=[pd_gravity, pd_gravity]",
+        "levels=[0.5, 0.5]",
+        "metric=path_rms",
+        "start=flying",
+        "control_hz=300",
         "controllers=[magic]",
         "disturbances=[hurricane]",
         "levels=[-1]",
@@ -187,3 +192,40 @@ def test_a_trained_residual_model_is_evaluated_like_a_controller(tmp_path) -> No
     assert (out / "example_sb3-sac_res.png").exists()
     with pytest.raises(InvalidConfigError, match="does not exist"):
         tiny(tmp_path, "x", f"controllers=[computed_torque, sb3:{tmp_path / 'nope'}]")
+
+
+def test_resume_refuses_a_different_sweep(full_run, tmp_path) -> None:
+    out = tmp_path / "other"
+    shutil.copytree(full_run, out)
+    longer = tiny(tmp_path, "other", "workers=1", "episode_s=0.2")
+    with pytest.raises(InvalidConfigError, match="episode_s"):
+        run_sweep(longer, resume=True, progress=False)
+    # Fields that change no episode may differ.
+    run_sweep(tiny(tmp_path, "other", "workers=2", "plots=false"), resume=True, progress=False)
+
+
+def test_every_preset_runs_in_an_episode() -> None:
+    """Each preset's schedule has what the metrics read (a push has a duration, ...)."""
+    from ptrack_gym.disturbances import PRESETS
+    from train.eval_episode import EpisodeSettings, Task, run_episode
+
+    settings = EpisodeSettings("ptrack_gym/TwoLinkTrack-v0", 0.05, 1000.0, "on_path", 0.5, 0.01)
+    for preset in PRESETS:
+        row, _ = run_episode(Task("pd_gravity", preset, 1.0, 0, 0), settings)
+        assert row["steps"] == 50 and np.isfinite(row["path_dist_rms"]), preset
+
+
+def test_recovery_median_counts_episodes_that_never_recovered() -> None:
+    from train.results import summarize
+
+    rows = pd.DataFrame(
+        {
+            "controller": "c", "disturbance": "impulse", "level": 1.0, "seed": range(5),
+            "episode": 0, "path_dist_rms": 0.1, "failed": 0.0, "time_err_rms": 0.1,
+            "speed_ratio_err": 0.0, "tau_rms_frac": 0.1,
+            "recovery_s": [0.3, np.nan, np.nan, np.nan, np.nan],
+        }
+    )  # fmt: skip
+    s = summarize(rows, reference=None, resamples=100).iloc[0]
+    assert s["recovery_s_median"] == np.inf
+    assert s["recovered_frac"] == pytest.approx(0.2)

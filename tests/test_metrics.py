@@ -86,6 +86,18 @@ def test_failure_counts_unstable_and_large_distance(setup) -> None:
     assert episode_metrics(unstable, model, tables)["failed"] == 1.0
 
 
+def test_an_early_blow_up_never_scores_better_than_tracking(setup) -> None:
+    """10 steps on the path, then unstable, out of 400 intended: the missing steps count
+    at the failure distance, so the RMS is near it, not near 0."""
+    model, tables = setup
+    rec = shifted_record(tables, lag_s=0.0, n_steps=10)
+    blown = EpisodeRecord(**{**rec.__dict__, "unstable": True, "intended_steps": 400})
+    m = episode_metrics(blown, model, tables, failure_distance_rad=0.5)
+    assert m["path_dist_rms"] > 0.49
+    assert m["time_err_rms"] > 0.49
+    assert m["failed"] == 1.0
+
+
 def test_effort_and_work(setup) -> None:
     model, tables = setup
     rec = shifted_record(tables, lag_s=0.0)

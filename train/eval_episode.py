@@ -214,6 +214,7 @@ def run_episode(
         disturbance_work_j=float(info["disturbance_work_j"]),
         unstable=unstable,
         impulse_end_s=_first_impulse_end(u.disturbance_schedule()),
+        intended_steps=env.spec.max_episode_steps if env.spec is not None else None,
     )
     metrics = episode_metrics(
         record,

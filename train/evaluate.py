@@ -40,6 +40,7 @@ from tqdm import tqdm
 
 from ptrack_gym.disturbances import PRESETS
 from ptrack_gym.errors import InvalidConfigError, PtrackError
+from ptrack_gym.metrics import METRIC_NAMES
 from train.eval_episode import (
     SB3_PREFIX,
     EpisodeSettings,
@@ -130,6 +131,21 @@ class EvalConfig:
             raise InvalidConfigError(f"levels must be positive, got {self.levels}")
         if self.seeds < 1 or self.episodes_per_seed < 1:
             raise InvalidConfigError("seeds and episodes_per_seed must be >= 1")
+        for name in ("controllers", "disturbances", "levels"):
+            values = [f"{v:g}" if name == "levels" else v for v in getattr(self, name)]
+            if len(set(values)) != len(values):
+                raise InvalidConfigError(f"{name} has duplicates: {getattr(self, name)}")
+        if self.metric not in METRIC_NAMES:
+            raise InvalidConfigError(f"metric {self.metric!r} is not one of {list(METRIC_NAMES)}")
+        if self.start not in ("on_path", "rest_near_path"):
+            raise InvalidConfigError(
+                f"start must be 'on_path' or 'rest_near_path', got {self.start!r}"
+            )
+        ratio = 1000.0 / self.control_hz if self.control_hz > 0 else float("nan")
+        if not (np.isfinite(ratio) and ratio >= 1 and abs(ratio - round(ratio)) < 1e-9):
+            raise InvalidConfigError(
+                f"control_hz must divide the 1000 Hz physics rate, got {self.control_hz}"
+            )
         if self.backend not in ("process", "ray"):
             raise InvalidConfigError(f"backend must be 'process' or 'ray', got {self.backend!r}")
         if self.reference not in self.controllers:
@@ -197,14 +213,17 @@ def _run_processes(
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")  # no PyBullet client or thread is inherited
-    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init) as pool:
+    pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init)
+    try:
         pending = {pool.submit(run_episode, t, settings, t in example): t for t in tasks}
         while pending:
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)
             for fut in finished:
                 task = pending.pop(fut)
-                row, trace = fut.result()
+                row, trace = fut.result()  # a failed episode raises here...
                 yield row, trace, task
+    finally:  # ...and the queued ones are cancelled, not run for nothing
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _run_ray(
@@ -253,6 +272,8 @@ def run_sweep(
             f"{episodes} exists: pass --resume to continue it, or another --out"
         )
     finished = done_keys(read_episodes(episodes))  # validates the file before anything runs
+    if finished:
+        _check_same_sweep(cfg, out / "config.yml")
     (out / "config.yml").write_text(yaml.safe_dump(dataclasses.asdict(cfg), sort_keys=False))
     (out / "command.txt").write_text(
         shlex.join([sys.executable, "-m", "train.evaluate", *sys.argv[1:]]) + "\n"
@@ -285,6 +306,26 @@ def run_sweep(
     return out
 
 
+#: Config fields that do not change any episode's numbers: a resume may change them.
+_RUN_ONLY_FIELDS = ("out", "workers", "backend", "ray_address", "plots", "video",
+                    "bootstrap_resamples", "reference")  # fmt: skip
+
+
+def _check_same_sweep(cfg: EvalConfig, saved: Path) -> None:
+    """Refuse to resume a sweep whose saved config differs in a field that changes results
+    (the rows would mix episodes of different settings)."""
+    if not saved.exists():
+        raise InvalidConfigError(
+            f"{saved} is missing: cannot check that --resume continues the same sweep"
+        )
+    old = yaml.safe_load(saved.read_text()) or {}
+    new = dataclasses.asdict(cfg)
+    changed = sorted(k for k in new if k not in _RUN_ONLY_FIELDS and k in old and old[k] != new[k])
+    if changed:
+        diffs = ", ".join(f"{k} {old[k]!r} -> {new[k]!r}" for k in changed)
+        raise InvalidConfigError(f"--resume with a different sweep: {diffs}; use another --out")
+
+
 def _example_condition(cfg: EvalConfig) -> tuple[str, float, int, int]:
     """The (disturbance, level, seed, episode) whose episodes are plotted: the first
     disturbed preset at its middle level, seed 0."""
@@ -297,6 +338,10 @@ def _example_condition(cfg: EvalConfig) -> tuple[str, float, int, int]:
 
 def _finish(cfg: EvalConfig, out: Path, show: bool = True) -> None:
     df = load_frame(out / "episodes.csv")
+    wanted = {t.key() for t in cfg.tasks()}
+    keys = df[["controller", "disturbance", "level", "seed", "episode"]].astype(str)
+    keys["level"] = df["level"].map(lambda v: f"{v:g}")
+    df = df[[tuple(r) in wanted for r in keys.itertuples(index=False)]]
     summary = summarize(df, cfg.metric, cfg.reference, cfg.bootstrap_resamples)
     summary.to_csv(out / "summary.csv", index=False)
     table = format_table(summary, cfg.metric)

@@ -112,9 +112,13 @@ def iqm(x: np.ndarray, axis: int = -1) -> np.ndarray:
 
 
 def _ci(values: np.ndarray, statistic: Any, resamples: int, seed: int) -> tuple[float, float]:
+    """95% percentile-bootstrap interval of ``statistic`` over the finite values; NaN for
+    fewer than 2 values, a point for identical ones."""
     values = values[np.isfinite(values)]
-    if len(values) < 2 or np.ptp(values) == 0.0:
-        v = float(statistic(values)) if len(values) else float("nan")
+    if len(values) < 2:
+        return float("nan"), float("nan")
+    if np.ptp(values) == 0.0:
+        v = float(statistic(values))
         return v, v
     res = stats.bootstrap(
         (values,),
@@ -145,6 +149,7 @@ def summarize(
     )
     for (ctrl, dist, level), g in groups:
         x = g[metric].to_numpy(dtype=float)
+        x = x[np.isfinite(x)]  # the point estimates use the same values as the intervals
         mean_lo, mean_hi = _ci(x, np.mean, resamples, seed)
         iqm_lo, iqm_hi = _ci(x, iqm, resamples, seed)
         row: dict[str, Any] = {
@@ -161,7 +166,9 @@ def summarize(
             "iqm_ci_high": iqm_hi,
             "time_err_rms_mean": float(g["time_err_rms"].mean()),
             "speed_ratio_err_mean": float(g["speed_ratio_err"].mean()),
-            "recovery_s_median": float(g["recovery_s"].median()),
+            # Never recovered (NaN) counts as +inf, so the median cannot hide failures.
+            "recovery_s_median": float(np.median(g["recovery_s"].fillna(np.inf))),
+            "recovered_frac": float(g["recovery_s"].notna().mean()),
             "tau_rms_frac_mean": float(g["tau_rms_frac"].mean()),
         }
         if ref_rows is not None:

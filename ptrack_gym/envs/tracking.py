@@ -231,6 +231,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             mean_path_speed_rad_s=float(np.mean(grid_speed)),
         )
         self._substep_accounting = self.disturbances.needs_substep_state
+        self._was_reset = False  # disturbances have no episode schedule before reset
 
     # -- construction helpers ------------------------------------------------------
     def _build_path(self, path: str | ReferencePath, path_seed: int | None) -> ReferencePath:
@@ -281,6 +282,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         self._apply_plant_changes()
         self._dist_tau = np.zeros(self.n)
         self._dist_work = 0.0
+        self._was_reset = True
         self._q_meas, self._qd_meas = self.disturbances.sense(self._q, self._qd)
         obs, info = self._observe(np.zeros(self.n), np.zeros(self.n), unstable=False)
         return obs, info
@@ -414,6 +416,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def disturbance_schedule(self) -> list[dict[str, Any]]:
         """This episode's drawn disturbance parameters, one dict per disturbance."""
+        if not self._was_reset:
+            raise RuntimeError("no disturbance schedule before the first reset()")
         return self.disturbances.schedules()
 
     # -- rendering and lifetime ------------------------------------------------------
@@ -471,6 +475,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             "measured": (self._q_meas, self._qd_meas),
             "disturbances": self.disturbances,
             "ledger": (self._dist_tau.copy(), self._dist_work),
+            "was_reset": self._was_reset,
         }
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -484,4 +489,6 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         self._q_meas, self._qd_meas = state["measured"]
         self.disturbances = state["disturbances"]
         self._dist_tau, self._dist_work = state["ledger"]
-        self._apply_plant_changes()
+        self._was_reset = state["was_reset"]
+        if self._was_reset:
+            self._apply_plant_changes()
