@@ -20,6 +20,7 @@ Conventions of every arm loaded here:
 
 from __future__ import annotations
 
+import math
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -144,6 +145,7 @@ class BulletArm:
         by_name: dict[str, JointInfo] = {}
         movable: list[str] = []
         self.num_links = p.getNumJoints(body_id, physicsClientId=cid)
+        self._link_range = list(range(self.num_links))
         for j in range(self.num_links):
             info = p.getJointInfo(body_id, j, physicsClientId=cid)
             name = info[1].decode()
@@ -194,11 +196,13 @@ class BulletArm:
         arr = np.asarray(x, dtype=np.float64)
         if arr.shape != (self.n,):
             raise ValueError(f"{what} must have shape ({self.n},), got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
+        values = arr.tolist()
+        # One float sum is finite iff every entry is (barring overflow, rechecked).
+        if not math.isfinite(sum(values)) and not all(map(math.isfinite, values)):
             raise ValueError(
                 f"{what} has non-finite entries at {np.flatnonzero(~np.isfinite(arr))}"
             )
-        return arr.tolist()
+        return values
 
     def link_index(self, link_name: str) -> int:
         """PyBullet link index of the link called ``link_name``."""
@@ -357,6 +361,18 @@ class BulletArm:
             physicsClientId=cid,
         )
         return np.array([s[0] for s in states])
+
+    def com_heights(self) -> list[float]:
+        """Heights z (m) of the centres of mass of links 0..num_links-1 at the arm's
+        current joint state (forward kinematics recomputed: PyBullet's cached link poses
+        lag one step behind ``stepSimulation``)."""
+        states = p.getLinkStates(
+            self.body_id,
+            self._link_range,
+            computeForwardKinematics=1,
+            physicsClientId=self.sim._require_connected(),
+        )
+        return [s[0][2] for s in states]
 
     def link_pose(self, link_name: str) -> tuple[FloatArray, FloatArray]:
         """World position (m) and quaternion (x, y, z, w) of a link frame, current state."""

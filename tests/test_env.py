@@ -617,3 +617,28 @@ def test_unwrapped_exposes_model_path_dt_tables(make_env: MakeEnv, env_id: str) 
     assert unwrapped.tables.model is unwrapped.model
     assert unwrapped.dt == 1e-3
     assert unwrapped.model.n == unwrapped.path.n == unwrapped.n
+
+
+# -- 11. info quantities ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("env_id", "scale"), [(TWO_LINK, 0.3), (IIWA, 0.02)])
+def test_info_energy_and_errors_are_the_nominal_models_at_the_true_state(
+    make_env: MakeEnv, env_id: str, scale: float
+) -> None:
+    """``energy_j`` = ½q̇ᵀM(q)q̇ + U(q) of the nominal model, ``tracking_error`` and
+    ``path_distance`` at the true state, every step, also with the plant's masses changed
+    (the env reads link heights from the simulated arm: a changed mass must not leak)."""
+    env = make_env(env_id, disturbance=("mismatch", 1.0))
+    u = env.unwrapped
+    env.reset(seed=4)
+    for action in _random_actions(u.n, 400, seed=9, scale=scale):
+        _, _, terminated, _, info = env.step(action)
+        assert not terminated
+        q, qd = u.joint_state()
+        expected = u.model.kinetic_energy(q, qd) + u.model.potential(q)
+        assert info["energy_j"] == pytest.approx(expected, rel=1e-12, abs=1e-12)
+        q_ref = u.path.evaluate(info["s_ref"])[0]
+        assert info["tracking_error"] == pytest.approx(np.linalg.norm(q_ref - q), abs=1e-14)
+        assert info["path_distance"] == pytest.approx(u.tables.nearest(q).distance, abs=1e-15)
+    assert np.max(np.abs(u.arm.link_masses() - u.model.link_masses_kg)) > 1e-3  # perturbed

@@ -59,7 +59,8 @@ class BulletModel:
         self._sim = BulletSim(gravity_mps2=gravity_mps2)
         self._arm = self._sim.load_arm(spec.urdf_path, spec.joint_names, spec.torque_limits_nm)
         self.n = self._arm.n
-        self._masses = self._arm.link_masses()  # (L,)
+        self.link_masses_kg: FloatArray = self._arm.link_masses()
+        """Nominal masses (kg) of links 0..L−1 (PyBullet order, fixed base excluded)."""
         self._zeros = np.zeros(self.n)
 
     def mass_matrix(self, q: FloatArray) -> FloatArray:
@@ -81,7 +82,7 @@ class BulletModel:
     def potential(self, q: FloatArray) -> float:
         """U(q) = Σ_links m_i g z_i(q) (J), z_i the height of link i's centre of mass."""
         coms = self._arm.link_coms(q)  # (L, 3)
-        return float(self.gravity_mps2 * (self._masses @ coms[:, 2]))
+        return float(self.gravity_mps2 * (self.link_masses_kg @ coms[:, 2]))
 
     def com_jacobian(self, link_name: str, q: FloatArray) -> FloatArray:
         """Translational Jacobian (m/rad) of a link's centre of mass at q, shape (3, n)."""
