@@ -178,20 +178,32 @@ def test_a_trained_residual_model_is_evaluated_like_a_controller(tmp_path) -> No
     run_dir = tmp_path / "sac_res"
     train_main(
         ["--algo", "sac", "--residual", "passivity", "--steps", "200", "--out", str(run_dir),
-         "--episode-s", "0.2", "--eval-freq", "0", "--checkpoint-freq", "0",
+         "--episode-s", "0.2", "--eval-freq", "0", "--checkpoint-freq", "100",
          "--set", "learning_starts=50", "--set", "policy_kwargs=dict(net_arch=[16])"]
     )  # fmt: skip
-    cfg = tiny(tmp_path, "with_model", "workers=1", f"controllers=[computed_torque, sb3:{run_dir}]")
+    final, early, latest = f"sb3:{run_dir}", f"sb3:{run_dir}@100", f"sb3:{run_dir}@200"
+    controllers = f"controllers=[computed_torque, {final}, {early}, {latest}]"
+    cfg = tiny(tmp_path, "with_model", "workers=1", controllers)
     out = run_sweep(cfg, progress=False)
     df = pd.read_csv(out / "episodes.csv")
-    model_rows = df[df["controller"] == f"sb3:{run_dir}"]
-    assert len(model_rows) == 4
-    assert np.isfinite(model_rows["path_dist_rms"]).all()
-    # At its training rate of 250 Hz, 0.4 s is 100 steps.
-    assert (model_rows["steps"] == 100).all()
+    rows = {c: df[df["controller"] == c].reset_index(drop=True) for c in (final, early, latest)}
+    for model_rows in rows.values():
+        assert len(model_rows) == 4
+        assert np.isfinite(model_rows["path_dist_rms"]).all()
+        # At its training rate of 250 Hz, 0.4 s is 100 steps.
+        assert (model_rows["steps"] == 100).all()
+    # The 200-step checkpoint is the final model: the same episodes, bit for bit; the
+    # 100-step one is another policy.
+    assert rows[latest]["path_dist_rms"].tolist() == rows[final]["path_dist_rms"].tolist()
+    assert rows[early]["path_dist_rms"].tolist() != rows[final]["path_dist_rms"].tolist()
     assert (out / "example_sb3-sac_res.png").exists()
+    assert (out / "example_sb3-sac_res-100.png").exists()
     with pytest.raises(InvalidConfigError, match="does not exist"):
         tiny(tmp_path, "x", f"controllers=[computed_torque, sb3:{tmp_path / 'nope'}]")
+    with pytest.raises(InvalidConfigError, match="does not exist"):
+        tiny(tmp_path, "x", f"controllers=[computed_torque, sb3:{run_dir}@150]")
+    with pytest.raises(InvalidConfigError, match="step count"):
+        tiny(tmp_path, "x", f"controllers=[computed_torque, sb3:{run_dir}@last]")
 
 
 def test_resume_refuses_a_different_sweep(full_run, tmp_path) -> None:

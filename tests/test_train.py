@@ -212,3 +212,12 @@ def test_zero_init_residual_starts_at_zero_action(algo_cls: type) -> None:
             assert float(target.abs().max()) == 0.0
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("residual", ["none", "passivity"])
+def test_env_disturbance_horizon_is_the_episode_length(residual: str) -> None:
+    """Energy budgets of sustained disturbances are spread over the episode the run
+    actually has (5 s at 250 Hz here), not the env's default 10-s horizon."""
+    env = build_env("ptrack_gym/TwoLinkTrack-v0", residual, 0.1, 250.0, 1250, "on_path", None)
+    assert env.unwrapped.disturbance_context.horizon_s == 5.0
+    env.close()

@@ -11,8 +11,12 @@ stream — the same disturbance schedule.
 Controllers are names of ``agents.factory`` or ``sb3:<run folder>``: a model trained by
 ``python -m train.train`` (pure or residual), rebuilt from the run's ``config.yml`` — its
 residual base, scale and control rate — with its ``vecnormalize.pkl`` statistics when
-present, acting deterministically. It runs at its training control rate, so it meets the
-same disturbance schedule in time (onsets, frequencies) but per-step noise draws differ.
+present, acting deterministically; ``sb3:<run folder>@<steps>`` runs the run's checkpoint
+of that many steps instead (``checkpoints/rl_model_<steps>_steps.zip`` with its
+VecNormalize statistics): a learning curve is a sweep over a run's checkpoints. A model
+runs at its training control rate, so it meets the same disturbance schedule in time
+(onsets, frequencies) but per-step noise draws differ; its env's disturbance horizon is
+the sweep's episode length, as for every other controller.
 """
 
 from __future__ import annotations
@@ -99,18 +103,37 @@ SB3_PREFIX = "sb3:"
 
 
 def label(controller: str) -> str:
-    """A file-name-safe label of a controller name (``sb3:runs/x`` → ``sb3-x``)."""
+    """A file-name-safe label of a controller name (``sb3:runs/x`` → ``sb3-x``,
+    ``sb3:runs/x@2000`` → ``sb3-x-2000``)."""
     if controller.startswith(SB3_PREFIX):
-        return "sb3-" + Path(controller[len(SB3_PREFIX) :]).name
+        run, _, steps = controller[len(SB3_PREFIX) :].partition("@")
+        return "sb3-" + Path(run).name + (f"-{steps}" if steps else "")
     return controller
+
+
+def sb3_files(controller: str) -> tuple[Path, Path, Path]:
+    """(run folder, model zip, VecNormalize pickle) of ``sb3:<run>`` or ``sb3:<run>@<steps>``;
+    the pickle may not exist (a run without normalization)."""
+    run, at, steps = controller[len(SB3_PREFIX) :].partition("@")
+    run_dir = Path(run)
+    if not at:
+        return run_dir, run_dir / "model.zip", run_dir / "vecnormalize.pkl"
+    if not steps.isdigit():
+        raise InvalidConfigError(f"{controller}: '@' must be followed by a step count")
+    ckpt = run_dir / "checkpoints"
+    return (
+        run_dir,
+        ckpt / f"rl_model_{steps}_steps.zip",
+        ckpt / f"rl_model_vecnormalize_{steps}_steps.pkl",
+    )
 
 
 def check_sb3_run(controller: str, env_id: str) -> Path:
     """The run folder of an ``sb3:`` controller, checked; raises InvalidConfigError."""
-    run_dir = Path(controller[len(SB3_PREFIX) :])
-    for name in ("config.yml", "model.zip"):
-        if not (run_dir / name).exists():
-            raise InvalidConfigError(f"{controller}: {run_dir / name} does not exist")
+    run_dir, model_zip, _ = sb3_files(controller)
+    for path in (run_dir / "config.yml", model_zip):
+        if not path.exists():
+            raise InvalidConfigError(f"{controller}: {path} does not exist")
     trained_on = yaml.safe_load((run_dir / "config.yml").read_text())["config"]["env_id"]
     if trained_on != env_id:
         raise InvalidConfigError(f"{controller} was trained on {trained_on}, not {env_id}")
@@ -130,6 +153,7 @@ def _sb3_policy(
     from train.train import ALGOS, build_env  # torch and SB3 only when a model is evaluated
 
     run_dir = check_sb3_run(controller, settings.env_id)
+    _, model_zip, stats_pkl = sb3_files(controller)
     cfg = yaml.safe_load((run_dir / "config.yml").read_text())
     c, derived = cfg["config"], cfg["derived"]
     env = build_env(
@@ -141,10 +165,10 @@ def _sb3_policy(
         settings.start,
         None if disturbance == "none" else f"{disturbance}:{level}",
     )
-    model = ALGOS[c["algo"]].load(str(run_dir / "model.zip"), device="cpu")
+    model = ALGOS[c["algo"]].load(str(model_zip), device="cpu")
     stats = None
-    if (run_dir / "vecnormalize.pkl").exists():
-        with (run_dir / "vecnormalize.pkl").open("rb") as fh:
+    if stats_pkl.exists():
+        with stats_pkl.open("rb") as fh:
             stats = pickle.load(fh)  # a VecNormalize without its venv: normalize_obs works
 
     def act(obs: np.ndarray) -> np.ndarray:

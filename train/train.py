@@ -449,11 +449,13 @@ def build_env(
     start: str,
     disturbance: str | None,
 ) -> gym.Env:
-    """One training or evaluation env: ``gym.make`` (+ the residual wrapper)."""
+    """One training or evaluation env: ``gym.make`` (+ the residual wrapper). The
+    disturbances' horizon (energy budgets of sustained torques) is the episode length."""
     env_kwargs: dict[str, Any] = {
         "control_hz": control_hz,
         "start": start,
         "disturbance": parse_disturbance(disturbance),
+        "horizon_s": max_episode_steps / control_hz,
         "max_episode_steps": max_episode_steps,
     }
     if residual == "none":
