@@ -111,7 +111,9 @@ def iqm(x: np.ndarray, axis: int = -1) -> np.ndarray:
     return stats.trim_mean(x, 0.25, axis=axis)
 
 
-def _ci(values: np.ndarray, statistic: Any, resamples: int, seed: int) -> tuple[float, float]:
+def bootstrap_ci(
+    values: np.ndarray, statistic: Any, resamples: int, seed: int
+) -> tuple[float, float]:
     """95% percentile-bootstrap interval of ``statistic`` over the finite values; NaN for
     fewer than 2 values, a point for identical ones."""
     values = values[np.isfinite(values)]
@@ -150,8 +152,8 @@ def summarize(
     for (ctrl, dist, level), g in groups:
         x = g[metric].to_numpy(dtype=float)
         x = x[np.isfinite(x)]  # the point estimates use the same values as the intervals
-        mean_lo, mean_hi = _ci(x, np.mean, resamples, seed)
-        iqm_lo, iqm_hi = _ci(x, iqm, resamples, seed)
+        mean_lo, mean_hi = bootstrap_ci(x, np.mean, resamples, seed)
+        iqm_lo, iqm_hi = bootstrap_ci(x, iqm, resamples, seed)
         row: dict[str, Any] = {
             "controller": ctrl,
             "disturbance": dist,
@@ -175,7 +177,7 @@ def summarize(
             keyed = g.set_index(["disturbance", "level", "seed", "episode"])[metric]
             common = keyed.index.intersection(ref_rows.index)
             diff = keyed.loc[common].to_numpy(float) - ref_rows.loc[common, metric].to_numpy(float)
-            lo, hi = _ci(diff, np.mean, resamples, seed)
+            lo, hi = bootstrap_ci(diff, np.mean, resamples, seed)
             row.update(
                 {
                     f"diff_vs_{reference}": float(np.mean(diff)) if len(diff) else float("nan"),

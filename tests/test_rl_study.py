@@ -1,0 +1,69 @@
+"""``python -m train.rl_study``: learning curves from the checkpoints of a multi-seed
+study (tiny runs: what they learned is irrelevant here, the plumbing is not)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+
+from ptrack_gym.errors import InvalidConfigError
+from train.rl_study import discover, main
+from train.train import main as train_main
+
+
+def _train(out: Path, residual: str, seed: int) -> None:
+    train_main(
+        ["--algo", "sac", "--residual", residual, "--steps", "200", "--out", str(out),
+         "--seed", str(seed), "--disturbance", "impulse:1.0", "--episode-s", "0.2",
+         "--eval-freq", "100", "--eval-episodes", "1", "--checkpoint-freq", "100",
+         "--set", "learning_starts=50", "--set", "policy_kwargs=dict(net_arch=[16])"]
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("study")
+    _train(root / "residual_s0", "passivity", 0)
+    _train(root / "pure_s0", "none", 0)
+    _train(root / "pure_s1", "none", 1)
+    return root
+
+
+def test_study_writes_curves_figure_and_final_table(study: Path, tmp_path: Path) -> None:
+    out = main(["--runs", str(study), "--out", str(tmp_path / "rep"), "--episodes", "2",
+                "--workers", "1", "--no-progress"])  # fmt: skip
+    curves = pd.read_csv(out / "learning_curves.csv")
+    # every run × checkpoint (100, 200) × disturbance (none, impulse) has its mean
+    assert len(curves) == 3 * 2 * 2
+    assert set(curves["steps"]) == {100, 200}
+    assert set(curves["group"]) == {"pure", "residual-passivity"}
+    assert curves["path_dist_rms"].notna().all()
+    episodes = pd.read_csv(out / "episodes.csv")
+    # base controller and computed torque alone + 6 checkpoints, 2 disturbances, 2 episodes
+    assert len(episodes) == (2 + 6) * 2 * 2
+    assert (out / "learning_curves.png").stat().st_size > 10_000
+    table = (out / "final.md").read_text()
+    assert "pure SAC @ 200 steps" in table and "residual-passivity SAC @ 200 steps" in table
+    assert "passivity alone" in table and "computed_torque alone" in table
+    # the curve value at the last checkpoint is the final table's per-seed figure
+    last = curves[(curves["group"] == "residual-passivity") & (curves["steps"] == 200)]
+    value = last[last["disturbance"] == "impulse"]["path_dist_rms"].item()
+    assert f"{value:.2e}" in table
+
+
+def test_runs_that_differ_in_what_they_share_are_refused(study: Path, tmp_path: Path) -> None:
+    root = tmp_path / "mixed"
+    shutil.copytree(study / "pure_s0", root / "a")
+    shutil.copytree(study / "pure_s1", root / "b")
+    cfg_file = root / "b" / "config.yml"
+    cfg = yaml.safe_load(cfg_file.read_text())
+    cfg["config"]["disturbance"] = "push:1.0"
+    cfg_file.write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InvalidConfigError, match="disturbance"):
+        discover(root)
+    with pytest.raises(InvalidConfigError, match="no finished runs"):
+        discover(tmp_path / "empty")

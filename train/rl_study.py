@@ -1,0 +1,281 @@
+"""Learning curves and final figures of a multi-seed RL study, from its checkpoints.
+
+A *study* is a folder of ``python -m train.train`` runs that share env, training
+disturbance, control rate, episode length and start mode, and differ in seed and in
+their residual base (``none`` = pure RL). This script evaluates **every checkpoint of
+every run** and the runs' base controller and computed torque alone, all through one
+``train.evaluate`` sweep (``sb3:<run>@<steps>`` entries), so every policy meets the same
+start states and the same disturbance schedules, under the training disturbance and
+undisturbed. It then writes:
+
+* ``learning_curves.png`` — path-distance RMS (rad, log scale) against training steps:
+  one thin line per run, the median over seeds thick, per group; the base controller
+  and computed torque as horizontal lines; one panel per disturbance; and the training
+  run's own ``EvalCallback`` return in a last panel;
+* ``final.md`` (also printed) — per group, the final model's path-distance RMS per seed
+  and pooled, and the paired difference to the base controller with a bootstrap 95 % CI
+  over the pooled (run, episode) pairs;
+* the sweep's own ``episodes.csv``, ``summary.csv`` and figures.
+
+Usage::
+
+    python -m train.rl_study --runs runs/study --out results/rl_study --episodes 10
+
+``--resume`` continues an interrupted evaluation (the sweep's ``episodes.csv``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from ptrack_gym.errors import InvalidConfigError
+from train.evaluate import EvalConfig, run_sweep
+from train.results import bootstrap_ci, load_frame
+
+#: Checkpoint file names of ``train.train`` (SB3's CheckpointCallback).
+_CKPT = re.compile(r"rl_model_(\d+)_steps\.zip$")
+
+#: The run-config keys every run of a study must share.
+SHARED_KEYS = ("env_id", "disturbance", "episode_s", "start")
+
+
+@dataclass(frozen=True)
+class Run:
+    """One training run of the study."""
+
+    path: Path
+    group: str  # "pure" or "residual-<base>"
+    base: str  # the residual base controller ("none" for pure RL)
+    seed: int
+    control_hz: float
+    checkpoints: tuple[int, ...]  # step counts with a checkpoint, ascending
+    config: dict[str, object]
+
+
+def discover(root: Path) -> list[Run]:
+    """The runs under ``root`` (folders with a ``config.yml`` and a ``model.zip``);
+    raises :class:`InvalidConfigError` if there are none or they do not share
+    :data:`SHARED_KEYS` and the control rate."""
+    runs = []
+    for cfg_file in sorted(root.glob("*/config.yml")):
+        run_dir = cfg_file.parent
+        if not (run_dir / "model.zip").exists():
+            continue
+        cfg = yaml.safe_load(cfg_file.read_text())
+        c = cfg["config"]
+        steps = sorted(
+            int(m.group(1))
+            for f in (run_dir / "checkpoints").glob("rl_model_*_steps.zip")
+            if (m := _CKPT.search(f.name))
+        )
+        base = str(c["residual"])
+        runs.append(
+            Run(
+                path=run_dir,
+                group="pure" if base == "none" else f"residual-{base}",
+                base=base,
+                seed=int(c["seed"]),
+                control_hz=float(cfg["derived"]["control_hz"]),
+                checkpoints=tuple(steps),
+                config=c,
+            )
+        )
+    if not runs:
+        raise InvalidConfigError(f"no finished runs (config.yml + model.zip) under {root}")
+    first = runs[0]
+    for r in runs[1:]:
+        for key in SHARED_KEYS:
+            if r.config[key] != first.config[key]:
+                raise InvalidConfigError(
+                    f"{r.path} has {key}={r.config[key]!r}, {first.path} has {first.config[key]!r}"
+                )
+        if r.control_hz != first.control_hz:
+            raise InvalidConfigError(f"{r.path} runs at {r.control_hz} Hz, {first.path} at "
+                                     f"{first.control_hz} Hz")  # fmt: skip
+    return runs
+
+
+def sweep_config(runs: Sequence[Run], episodes: int, out: Path, workers: int) -> EvalConfig:
+    """The evaluation sweep: base controllers + every checkpoint of every run, under
+    the training disturbance and undisturbed, ``episodes`` paired episodes each."""
+    first = runs[0].config
+    preset, _, level = str(first["disturbance"]).partition(":")
+    if preset in ("", "none"):
+        raise InvalidConfigError("the study's runs were trained without a disturbance")
+    bases = sorted({r.base for r in runs if r.base != "none"}) or ["passivity"]
+    baselines = list(dict.fromkeys([*bases, "computed_torque"]))
+    entries = [f"sb3:{r.path}@{s}" for r in runs for s in r.checkpoints]
+    return EvalConfig(
+        env_id=str(first["env_id"]),
+        controllers=baselines + entries,
+        disturbances=["none", preset],
+        levels=[float(level) if level else 1.0],
+        seeds=episodes,
+        episode_s=float(first["episode_s"]),  # type: ignore[arg-type]
+        control_hz=runs[0].control_hz,
+        start=str(first["start"]),
+        reference=bases[0],
+        workers=workers,
+        out=str(out),
+        plots=False,
+    )
+
+
+def curve_frame(df: pd.DataFrame, runs: Sequence[Run]) -> pd.DataFrame:
+    """Mean path-distance RMS per (run, checkpoint, disturbance): columns group, seed,
+    steps, disturbance, path_dist_rms, failure_rate."""
+    rows = []
+    for r in runs:
+        for s in r.checkpoints:
+            g = df[df["controller"] == f"sb3:{r.path}@{s}"]
+            for dist, gd in g.groupby("disturbance"):
+                rows.append(
+                    {
+                        "group": r.group,
+                        "seed": r.seed,
+                        "steps": s,
+                        "disturbance": dist,
+                        "path_dist_rms": float(gd["path_dist_rms"].mean()),
+                        "failure_rate": float(gd["failed"].mean()),
+                    }
+                )
+    return pd.DataFrame(rows)
+
+
+def eval_callback_curves(runs: Sequence[Run]) -> pd.DataFrame:
+    """The training runs' own EvalCallback logs: columns group, seed, steps, return."""
+    rows = []
+    for r in runs:
+        for f in sorted((r.path / "eval").glob("from_*/evaluations.npz")):
+            log = np.load(f)
+            for steps, results in zip(log["timesteps"], log["results"], strict=True):
+                rows.append(
+                    {"group": r.group, "seed": r.seed, "steps": int(steps),
+                     "return": float(np.mean(results))}
+                )  # fmt: skip
+    return pd.DataFrame(rows).drop_duplicates(["group", "seed", "steps"], keep="last")
+
+
+def plot_curves(
+    curves: pd.DataFrame,
+    returns: pd.DataFrame,
+    baselines: pd.DataFrame,
+    path: Path,
+) -> None:
+    """The learning-curve figure (see the module docstring)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    dists = sorted(curves["disturbance"].unique(), key=lambda d: d != "none")
+    fig, axes = plt.subplots(1, len(dists) + 1, figsize=(5.2 * (len(dists) + 1), 4.2))
+    colors = {g: f"C{i}" for i, g in enumerate(sorted(curves["group"].unique()))}
+    for ax, dist in zip(axes, dists, strict=False):
+        sub = curves[curves["disturbance"] == dist]
+        for group, gg in sub.groupby("group"):
+            for _, gs in gg.groupby("seed"):
+                ax.plot(gs["steps"], gs["path_dist_rms"], color=colors[group], lw=0.8, alpha=0.4)
+            med = gg.groupby("steps")["path_dist_rms"].median()
+            ax.plot(med.index, med.values, color=colors[group], lw=2.2, marker="o",
+                    label=f"{group} (median of {gg['seed'].nunique()} seeds)")  # fmt: skip
+        for i, (ctrl, value) in enumerate(baselines[dist].items()):
+            ax.axhline(value, color="k", ls=["--", ":", "-."][i % 3], lw=1.2, label=f"{ctrl} alone")
+        ax.set_yscale("log")
+        ax.set_xlabel("training steps")
+        ax.set_ylabel("path distance RMS (rad), mean over test episodes")
+        ax.set_title(f"test episodes, disturbance: {dist}")
+        ax.grid(alpha=0.3, which="both")
+    axes[0].legend(fontsize=7)
+    ax = axes[-1]
+    for group, gg in returns.groupby("group"):
+        for _, gs in gg.groupby("seed"):
+            ax.plot(gs["steps"], -gs["return"], color=colors.get(group, "k"), lw=0.8, alpha=0.4)
+        med = gg.groupby("steps")["return"].median()
+        ax.plot(med.index, -med.values, color=colors.get(group, "k"), lw=2.2, label=group)
+    ax.set_yscale("log")
+    ax.set_xlabel("training steps")
+    ax.set_ylabel("− episode return (EvalCallback, 5 episodes)")
+    ax.set_title("training-time evaluation (training disturbance)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def final_table(df: pd.DataFrame, runs: Sequence[Run], reference: str, resamples: int) -> str:
+    """Markdown table of the final checkpoints against the base controllers alone."""
+    lines = [
+        "| disturbance | policy | path-dist RMS per seed (rad) | pooled mean (rad) | "
+        f"Δ vs {reference} alone, 95% CI | failures |",
+        "| --- | --- | --- | ---: | --- | ---: |",
+    ]
+    key = ["disturbance", "level", "seed", "episode"]
+    for dist, gd in df.groupby("disturbance", sort=False):
+        ref = gd[gd["controller"] == reference].set_index(key)["path_dist_rms"]
+        baselines = [c for c in gd["controller"].unique() if not c.startswith("sb3:")]
+        for ctrl in baselines:
+            x = gd[gd["controller"] == ctrl]["path_dist_rms"].to_numpy(float)
+            lines.append(f"| {dist} | {ctrl} alone | — | {np.mean(x):.3e} | — | "
+                         f"{int(gd[gd['controller'] == ctrl]['failed'].sum())} |")  # fmt: skip
+        for group in sorted({r.group for r in runs}):
+            per_seed, diffs, fails = [], [], 0
+            for r in sorted((r for r in runs if r.group == group), key=lambda r: r.seed):
+                g = gd[gd["controller"] == f"sb3:{r.path}@{r.checkpoints[-1]}"].set_index(key)
+                per_seed.append(float(g["path_dist_rms"].mean()))
+                common = g.index.intersection(ref.index)
+                diffs.extend((g.loc[common, "path_dist_rms"] - ref.loc[common]).tolist())
+                fails += int(g["failed"].sum())
+            d = np.asarray(diffs)
+            lo, hi = bootstrap_ci(d, np.mean, resamples, 0)
+            steps = max(r.checkpoints[-1] for r in runs if r.group == group)
+            lines.append(
+                f"| {dist} | {group} SAC @ {steps} steps | "
+                + ", ".join(f"{v:.2e}" for v in per_seed)
+                + f" | {np.mean(per_seed):.3e} | {np.mean(d):+.2e} [{lo:+.2e}, {hi:+.2e}]"
+                + f" | {fails} |"
+            )
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> Path:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--runs", type=Path, required=True, help="folder of train.train runs")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--episodes", type=int, default=10, help="paired test episodes")
+    p.add_argument("--workers", type=int, default=0, help="worker processes (0: cores)")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted sweep")
+    p.add_argument("--no-progress", action="store_true")
+    args = p.parse_args(argv)
+
+    runs = discover(args.runs)
+    cfg = sweep_config(runs, args.episodes, args.out, args.workers)
+    cfg.validate()
+    out = run_sweep(cfg, resume=args.resume, progress=not args.no_progress, show=False)
+    df = load_frame(out / "episodes.csv")
+    curves = curve_frame(df, runs)
+    curves.to_csv(out / "learning_curves.csv", index=False)
+    baselines = {
+        dist: gd[~gd["controller"].str.startswith("sb3:")]
+        .groupby("controller")["path_dist_rms"]
+        .mean()
+        for dist, gd in df.groupby("disturbance")
+    }
+    plot_curves(curves, eval_callback_curves(runs), baselines, out / "learning_curves.png")
+    table = final_table(df, runs, cfg.reference, cfg.bootstrap_resamples)
+    (out / "final.md").write_text(table + "\n")
+    print(table)
+    return out
+
+
+if __name__ == "__main__":
+    main()
