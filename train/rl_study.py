@@ -12,9 +12,10 @@ undisturbed. It then writes:
   one thin line per run, the median over seeds thick, per group; the base controller
   and computed torque as horizontal lines; one panel per disturbance; and the training
   run's own ``EvalCallback`` return in a last panel;
-* ``final.md`` (also printed) — per group, the final model's path-distance RMS per seed
-  and pooled, and the paired difference to the base controller with a bootstrap 95 % CI
-  over the pooled (run, episode) pairs;
+* ``final.md`` (also printed) — per group, at the largest step count every run has a
+  checkpoint of (one budget for all), the path-distance RMS per seed and pooled, and the
+  paired difference to the base controller with a bootstrap 95 % CI over the pooled
+  (run, episode) pairs;
 * the sweep's own ``episodes.csv``, ``summary.csv`` and figures.
 
 Usage::
@@ -212,8 +213,19 @@ def plot_curves(
     plt.close(fig)
 
 
+def final_steps(runs: Sequence[Run]) -> int:
+    """The largest step count every run has a checkpoint of (the common budget)."""
+    common = set.intersection(*(set(r.checkpoints) for r in runs))
+    if not common:
+        raise InvalidConfigError("the runs share no checkpoint step count")
+    return max(common)
+
+
 def final_table(df: pd.DataFrame, runs: Sequence[Run], reference: str, resamples: int) -> str:
-    """Markdown table of the final checkpoints against the base controllers alone."""
+    """Markdown table of the final checkpoints against the base controllers alone. Every
+    run is taken at the same budget: the largest step count all runs have a checkpoint
+    of."""
+    steps = final_steps(runs)
     lines = [
         "| disturbance | policy | path-dist RMS per seed (rad) | pooled mean (rad) | "
         f"Δ vs {reference} alone, 95% CI | failures |",
@@ -230,14 +242,13 @@ def final_table(df: pd.DataFrame, runs: Sequence[Run], reference: str, resamples
         for group in sorted({r.group for r in runs}):
             per_seed, diffs, fails = [], [], 0
             for r in sorted((r for r in runs if r.group == group), key=lambda r: r.seed):
-                g = gd[gd["controller"] == f"sb3:{r.path}@{r.checkpoints[-1]}"].set_index(key)
+                g = gd[gd["controller"] == f"sb3:{r.path}@{steps}"].set_index(key)
                 per_seed.append(float(g["path_dist_rms"].mean()))
                 common = g.index.intersection(ref.index)
                 diffs.extend((g.loc[common, "path_dist_rms"] - ref.loc[common]).tolist())
                 fails += int(g["failed"].sum())
             d = np.asarray(diffs)
             lo, hi = bootstrap_ci(d, np.mean, resamples, 0)
-            steps = max(r.checkpoints[-1] for r in runs if r.group == group)
             lines.append(
                 f"| {dist} | {group} SAC @ {steps} steps | "
                 + ", ".join(f"{v:.2e}" for v in per_seed)
