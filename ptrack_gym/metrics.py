@@ -135,9 +135,10 @@ def episode_metrics(
     frac = np.abs(record.tau_nm) / record.torque_limits_nm
     dq = np.diff(q, axis=0)
     work = float(np.sum(record.tau_nm[1:] * dq)) if len(q) > 1 else 0.0
+    # A blown-up episode never recovered (and its padded series has no time stamps).
     recovery = (
         recovery_time(record.t_s, dist, record.impulse_end_s, recovery_threshold_rad)
-        if record.impulse_end_s is not None
+        if record.impulse_end_s is not None and not record.unstable
         else float("nan")
     )
     failed = record.unstable or bool(np.max(dist) > failure_distance_rad)

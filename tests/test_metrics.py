@@ -96,6 +96,20 @@ def test_an_early_blow_up_never_scores_better_than_tracking(setup) -> None:
     assert m["path_dist_rms"] > 0.49
     assert m["time_err_rms"] > 0.49
     assert m["failed"] == 1.0
+    assert np.isnan(m["recovery_s"])  # no impulse
+
+
+def test_a_blow_up_after_an_impulse_never_recovered(setup) -> None:
+    """Found by an RL study: a policy that blew up after an impulse crashed the metrics
+    (time stamps of the short record against the padded distance series)."""
+    model, tables = setup
+    rec = shifted_record(tables, lag_s=0.0, n_steps=10)
+    blown = EpisodeRecord(
+        **{**rec.__dict__, "unstable": True, "intended_steps": 400, "impulse_end_s": 0.02}
+    )
+    m = episode_metrics(blown, model, tables, failure_distance_rad=0.5)
+    assert np.isnan(m["recovery_s"])
+    assert m["failed"] == 1.0
 
 
 def test_effort_and_work(setup) -> None:
