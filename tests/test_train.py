@@ -124,6 +124,9 @@ def test_resume_continues_steps_replay_buffer_and_statistics(tmp_path: Path) -> 
     assert len((out / "command.txt").read_text().splitlines()) == 2
     with pytest.raises(TrainConfigError, match="differs"):
         run(parse_args(argv(out, "sac", "computed_torque", 100, "--resume")))
+    with pytest.raises(TrainConfigError, match="reward_weights"):
+        run(parse_args(argv(out, "sac", "passivity", 100, "--resume",
+                            "--reward-weights", "10", "0", "0.01")))  # fmt: skip
     with pytest.raises(TrainConfigError, match="already holds a run"):
         run(parse_args(argv(out, "sac", "passivity", 100)))
 
@@ -137,6 +140,8 @@ def test_resume_continues_steps_replay_buffer_and_statistics(tmp_path: Path) -> 
         (["--set", "policy_kwargs=__import__('os').getcwd()"], "only dict"),
         (["--set", "policy_kwargs=dict(net_arch=[os.sep])"], "not allowed"),
         (["--control-hz", "300"], "control_hz"),
+        (["--reward-weights", "10", "-1", "0"], "reward_weights"),
+        (["--reward-weights", "10", "nan", "0"], "reward_weights"),
         (["--resume"], "no checkpoint"),
     ],
 )
@@ -220,4 +225,19 @@ def test_env_disturbance_horizon_is_the_episode_length(residual: str) -> None:
     actually has (5 s at 250 Hz here), not the env's default 10-s horizon."""
     env = build_env("ptrack_gym/TwoLinkTrack-v0", residual, 0.1, 250.0, 1250, "on_path", None)
     assert env.unwrapped.disturbance_context.horizon_s == 5.0
+    env.close()
+
+
+def test_reward_weights_reach_the_training_env() -> None:
+    """``--reward-weights`` sets the env's reward: with the time weight 0 the reward is
+    −(w_path d² + w_effort |a|²/n) whatever the time-indexed error."""
+    env = build_env(
+        "ptrack_gym/TwoLinkTrack-v0", "passivity", 0.1, 250.0, 1250, "on_path", None,
+        [10.0, 0.0, 0.01],
+    )  # fmt: skip
+    env.reset(seed=0)
+    _, reward, _, _, info = env.step(np.full(2, 0.5, dtype=np.float32))
+    assert env.unwrapped.reward_weights == (10.0, 0.0, 0.01)
+    assert info["reward_time"] == 0.0
+    assert reward == info["reward_path"] + info["reward_effort"]
     env.close()

@@ -45,7 +45,7 @@ from train.results import bootstrap_ci, load_frame
 _CKPT = re.compile(r"rl_model_(\d+)_steps\.zip$")
 
 #: The run-config keys every run of a study must share.
-SHARED_KEYS = ("env_id", "disturbance", "episode_s", "start")
+SHARED_KEYS = ("env_id", "disturbance", "episode_s", "start", "reward_weights")
 
 
 @dataclass(frozen=True)
@@ -94,9 +94,10 @@ def discover(root: Path) -> list[Run]:
     first = runs[0]
     for r in runs[1:]:
         for key in SHARED_KEYS:
-            if r.config[key] != first.config[key]:
+            if r.config.get(key) != first.config.get(key):
                 raise InvalidConfigError(
-                    f"{r.path} has {key}={r.config[key]!r}, {first.path} has {first.config[key]!r}"
+                    f"{r.path} has {key}={r.config.get(key)!r}, "
+                    f"{first.path} has {first.config.get(key)!r}"
                 )
         if r.control_hz != first.control_hz:
             raise InvalidConfigError(f"{r.path} runs at {r.control_hz} Hz, {first.path} at "

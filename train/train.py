@@ -147,6 +147,9 @@ class TrainConfig:
     """Episode length (s): max_episode_steps = round(episode_s · control_hz)."""
     start: str = "on_path"
     """The env's start mode: "on_path" or "rest_near_path"."""
+    reward_weights: list[float] | None = None
+    """The env's reward weights [path, time, effort] (see ``TrackingEnv``); None → the
+    env's default (10, 1, 0.01). The evaluation env uses the same."""
     torch_threads: int = 1
     """``torch.set_num_threads`` (the machines are shared: keep 1)."""
     device: str = "cpu"
@@ -379,6 +382,13 @@ def validate(cfg: TrainConfig) -> Resolved:
     max_episode_steps = max(1, round(cfg.episode_s * control_hz))
     if cfg.start not in ("on_path", "rest_near_path"):
         raise TrainConfigError(f"start must be 'on_path' or 'rest_near_path', got {cfg.start!r}")
+    if cfg.reward_weights is not None and (
+        len(cfg.reward_weights) != 3
+        or not all(math.isfinite(w) and w >= 0 for w in cfg.reward_weights)
+    ):
+        raise TrainConfigError(
+            f"reward_weights must be three non-negative numbers, got {cfg.reward_weights!r}"
+        )
     for name in ("eval_freq", "checkpoint_freq"):
         if getattr(cfg, name) < 0:
             raise TrainConfigError(f"{name} must be >= 0")
@@ -423,7 +433,8 @@ def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
     if not path.exists():
         return
     saved = yaml.safe_load(path.read_text()).get("config", {})
-    for key in ("algo", "env_id", "residual", "scale_fraction", "start", "episode_s"):
+    for key in ("algo", "env_id", "residual", "scale_fraction", "start", "episode_s",
+                "reward_weights"):  # fmt: skip
         if key in saved and saved[key] != getattr(cfg, key):
             raise TrainConfigError(
                 f"--resume: {key}={getattr(cfg, key)!r} differs from the run's {saved[key]!r}"
@@ -448,6 +459,7 @@ def build_env(
     max_episode_steps: int,
     start: str,
     disturbance: str | None,
+    reward_weights: Sequence[float] | None = None,
 ) -> gym.Env:
     """One training or evaluation env: ``gym.make`` (+ the residual wrapper). The
     disturbances' horizon (energy budgets of sustained torques) is the episode length."""
@@ -458,6 +470,8 @@ def build_env(
         "horizon_s": max_episode_steps / control_hz,
         "max_episode_steps": max_episode_steps,
     }
+    if reward_weights is not None:
+        env_kwargs["reward_weights"] = tuple(float(w) for w in reward_weights)
     if residual == "none":
         return gym.make(env_id, **env_kwargs)
     return make_residual_env(env_id, residual, scale_fraction, **env_kwargs)
@@ -474,6 +488,7 @@ def _env_factory(res: Resolved, disturbance: str | None) -> Callable[[], gym.Env
         res.max_episode_steps,
         c.start,
         disturbance,
+        c.reward_weights,
     )
 
 
@@ -768,6 +783,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--control-hz", type=float, default=None, help="default: per robot")
     p.add_argument("--episode-s", type=float, default=d.episode_s)
     p.add_argument("--start", choices=("on_path", "rest_near_path"), default=d.start)
+    p.add_argument(
+        "--reward-weights", type=float, nargs=3, default=None,
+        metavar=("W_PATH", "W_TIME", "W_EFFORT"), help="the env's reward weights",
+    )  # fmt: skip
     p.add_argument("--torch-threads", type=int, default=d.torch_threads)
     p.add_argument("--device", default=d.device)
     p.add_argument("--verbose", type=int, default=d.verbose)
