@@ -29,6 +29,11 @@ Notation (SI units; s, σ in seconds of path time): with measured (q, q̇),
     M_r(s)\\ddot s = -\\tfrac12 M_r'(s)(\\dot s^2 - 1) + e_c + f_r
 
 Storage function E = H + W_r(σ) + H_r + φ + ψ, with Ė = −R s̃̇² (k = 0, no disturbance).
+
+Opt-in, not in the paper: ``PassivityGains.sync_rate`` > 0 adds a low-speed phase
+re-synchronisation of σ (see :meth:`PassivityController.law`); it acts only while the
+speed ratio v/√M_r(s) is below ``sync_ratio`` and leaves the law above it unchanged.
+With ``sync_rate`` = 0 (the dataclass default) the law is exactly the paper's.
 """
 
 from __future__ import annotations
@@ -59,6 +64,13 @@ class PassivityGains:
             f = −k(H + W_r(σ)) q̇ (the paper's written form).
         speed_eps: below this √(q̇ᵀMq̇) (√J) the direction τ_q̇/speed is taken as 0, as the
             paper prescribes for speed ≈ 0; keeps the law finite at rest.
+        sync_rate: γ ≥ 0 (1/s), low-speed phase re-synchronisation — NOT in the paper;
+            0 (the default) is the paper's law exactly. With γ > 0, while the speed ratio
+            v/√M_r(s) is below ``sync_ratio``, σ is also pulled toward the arm's own phase
+            on the path (see :meth:`PassivityController.law`), which frees the stall trap
+            of the paper's law. Above ``sync_ratio`` the law is the paper's.
+        sync_ratio: r̄ > 0, the speed ratio v/√M_r(s) below which ``sync_rate`` acts
+            (with a smooth step: full strength at rest, none from r̄ on).
     """
 
     K: float | tuple[float, ...] = 100.0
@@ -67,6 +79,8 @@ class PassivityGains:
     k_pump: float = 20.0
     pump: str = "metric"
     speed_eps: float = 1e-6
+    sync_rate: float = 0.0
+    sync_ratio: float = 0.5
 
     def __post_init__(self) -> None:
         k = np.atleast_1d(np.asarray(self.K, dtype=np.float64))
@@ -84,6 +98,10 @@ class PassivityGains:
             raise ValueError(f"pump must be one of {_PUMPS}, got {self.pump!r}")
         if not (np.isfinite(self.speed_eps) and self.speed_eps > 0):
             raise ValueError(f"speed_eps must be positive, got {self.speed_eps!r}")
+        if not (np.isfinite(self.sync_rate) and self.sync_rate >= 0):
+            raise ValueError(f"sync_rate must be >= 0, got {self.sync_rate!r}")
+        if not (np.isfinite(self.sync_ratio) and self.sync_ratio > 0):
+            raise ValueError(f"sync_ratio must be positive, got {self.sync_ratio!r}")
 
     def stiffness(self, n: int) -> FloatArray:
         """The diagonal of K as an (n,) array."""
@@ -108,6 +126,7 @@ class LawOutput(NamedTuple):
     psi: float  # ψ (J)
     pump_power: float  # q̇ᵀf + ṡ f_r, power the pump injects (W)
     dissipation: float  # R s̃̇², the passive dissipation rate (W)
+    sync_power: float  # (W_r'(σ) − κ s̃ − R s̃̇)·u: what the re-synchronisation u adds to Ė (W)
     s_tilde: float  # s̃ = s − σ (s)
     s_tilde_dot: float  # s̃̇ = ṡ − σ̇ (1)
     tau_sync: FloatArray  # (n,) N·m
@@ -167,7 +186,30 @@ class PassivityController:
 
     # -- the law (pure) --------------------------------------------------------------
     def law(self, q: FloatArray, qd: FloatArray, s: float, sd: float, sigma: float) -> LawOutput:
-        """Evaluate the control law at (q, q̇, s, ṡ, σ); changes no state."""
+        """Evaluate the control law at (q, q̇, s, ṡ, σ); changes no state.
+
+        Low-speed phase re-synchronisation (``gains.sync_rate`` γ > 0; not in the paper):
+        the paper's σ integrates the speed ratio v/√M_r(s), which counts *any* motion, so
+        the initial snap onto the path from an off-path rest start can leave σ a few
+        tenths of a second ahead of the arm's actual place on the path. At low speed that
+        phase defect makes the μ channel brake the arm (κ s̃ and W_r'(σ) at the wrong
+        phase), the spring φ passes the brake on to s, and the pair stalls at ṡ ≈ 0.02
+        (the trap of ``docs/passivity_gain_study.md``). With γ > 0,
+
+            σ̇ = v/√M_r(s) + w γ Δ,   Δ = (q − q_r(σ))ᵀ M(q) q_r'(σ) / (q_r'(σ)ᵀ M(q) q_r'(σ)),
+
+        Δ the Gauss–Newton step from σ toward the point of the path nearest q in the
+        metric M(q), and w = 1 − 3x² + 2x³, x = min(v/(r̄ √M_r(s)), 1), r̄ =
+        ``gains.sync_ratio``: w = 1 at rest, w = 0 at and above the speed ratio r̄. So σ
+        relaxes toward the arm's phase at rate γ while the arm is slow, and the law is
+        the paper's exactly whenever v/√M_r(s) ≥ r̄ (in particular on the reference, so
+        Lemma 5.1 holds). With u = w γ Δ the storage function's balance becomes
+        Ė = −R s̃̇² + pump power + q̇ᵀτ_d + (W_r'(σ) − κ s̃ − R s̃̇) u, the last term
+        ``sync_power`` (derivation: σ̇ = σ̇₀ + u enters Ẇ_r(σ) and ψ̇, while the μ channel
+        delivers −μ√M_r σ̇₀; tested on the exact closed loop): Theorem 4.1's
+        Ė = −R s̃̇² holds only where v/√M_r(s) ≥ r̄. ``sigma_dot`` in the output is the
+        full σ̇ (what σ integrates); s̃̇ = ṡ − σ̇ uses it too.
+        """
         g = self.gains
         ref, ref_sigma = self.tables.pair(s, sigma)
         mass = self.model.mass_matrix(q)  # (n, n)
@@ -176,13 +218,23 @@ class PassivityController:
         speed = np.sqrt(speed2)
         m_r = ref.m_r
         sigma_dot = np.sqrt(speed2 / m_r)
+        sync = 0.0  # u, the re-synchronisation's part of σ̇
+        if g.sync_rate > 0.0:
+            x = min(sigma_dot / g.sync_ratio, 1.0)
+            w = 1.0 - x * x * (3.0 - 2.0 * x)
+            if w > 0.0:
+                t_sigma = mass @ ref_sigma.qd  # M(q) q_r'(σ)
+                delta = float((q - ref_sigma.q) @ t_sigma) / float(ref_sigma.qd @ t_sigma)
+                sync = w * g.sync_rate * delta
+                sigma_dot = sigma_dot + sync
         s_t, s_td = s - sigma, sd - sigma_dot
         err = q - ref.q  # (n,)
         dphi_dq = self.k_diag * err  # ∂φ/∂q; ∂φ/∂q_r = −∂φ/∂q
         phi = 0.5 * float(err @ dphi_dq)
         psi = 0.5 * g.kappa * s_t**2
         tau_r0 = (speed2 / m_r) * ref.tau - (float(qd @ ref.tau) / m_r) * tau_qd
-        mu = (ref_sigma.w_r_d - g.kappa * s_t - g.R * s_td) / np.sqrt(m_r)
+        mu_j = ref_sigma.w_r_d - g.kappa * s_t - g.R * s_td  # μ √M_r(s) (J)
+        mu = mu_j / np.sqrt(m_r)
         tau_sync = tau_r0 - dphi_dq
         if speed > g.speed_eps:
             tau_sync = tau_sync - (mu / speed) * tau_qd
@@ -204,6 +256,7 @@ class PassivityController:
             psi=float(psi),
             pump_power=float(qd @ f + sd * f_r),
             dissipation=float(g.R * s_td**2),
+            sync_power=float(mu_j * sync),
             s_tilde=float(s_t),
             s_tilde_dot=float(s_td),
             tau_sync=tau_sync,

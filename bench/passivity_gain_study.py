@@ -25,6 +25,8 @@ Gain parametrisation (every set is stated in physical terms, then made absolute)
 * κ = ω_s² · M̄_r,  R = ρ · M̄_r  (ρ = 2ζω_s for a damping ratio ζ)   (phase spring and
   damping; M̄_r = mean of M_r(s) over the path, the "mass" of M_r(s) s̈ = …)
 * k_pump = λ / M̄_r                 (the pump's energy-decay rate is ≈ k·q̇ᵀMq̇ ≈ k·M_r)
+* sync_rate = γ (1/s), sync_ratio = r̄: the law's opt-in low-speed phase
+  re-synchronisation (``PassivityGains``; γ = 0, the default, is the paper's law)
 
 One CSV row per (gain set, seed) goes to ``--out``; a markdown summary per gain set is
 printed (converged count, count with t_c ≤ ``--target-s``, median and max t_c over
@@ -88,12 +90,16 @@ class GainPoint:
     lam: float  # λ (1/s): k_pump = λ / M̄_r
     pump: str = "metric"
     m_floor: float = 0.0  # kg·m²: K_j = ω² max(M_jj(q_home), m_floor)
+    sync_rate: float = 0.0  # γ (1/s): low-speed phase re-synchronisation (0 = paper law)
+    sync_ratio: float = 0.5  # r̄ (1): speed ratio below which sync_rate acts
 
     @property
     def label(self) -> str:
         return (
             f"w={self.omega:g} ws={self.omega_s:g} rho={self.rho:g} "
-            f"lam={self.lam:g} {self.pump}" + (f" mfloor={self.m_floor:g}" if self.m_floor else "")
+            f"lam={self.lam:g} {self.pump}"
+            + (f" mfloor={self.m_floor:g}" if self.m_floor else "")
+            + (f" sync={self.sync_rate:g}/{self.sync_ratio:g}" if self.sync_rate else "")
         )
 
     def gains(self, inertia: np.ndarray, mean_m_r: float) -> PassivityGains:
@@ -103,11 +109,14 @@ class GainPoint:
             R=float(self.rho * mean_m_r),
             k_pump=float(self.lam / mean_m_r),
             pump=self.pump,
+            sync_rate=self.sync_rate,
+            sync_ratio=self.sync_ratio,
         )
 
 
 def parse_set(text: str) -> GainPoint:
-    """``omega=10,omega_s=4,rho=1,lam=5[,pump=metric]`` → GainPoint."""
+    """``omega=10,omega_s=4,rho=1,lam=5[,pump=metric][,m_floor=..][,sync_rate=..]
+    [,sync_ratio=..]`` → GainPoint."""
     fields: dict[str, str] = dict(kv.split("=", 1) for kv in text.split(","))
     pump = fields.pop("pump", "metric")
     return GainPoint(**{k: float(v) for k, v in fields.items()}, pump=pump)  # type: ignore[arg-type]
@@ -389,8 +398,8 @@ def main(argv: list[str] | None = None) -> int:
 
                 stored = default_passivity_gains(args.robot)
                 if not np.allclose(stored.K, gains.K, rtol=1e-12) or not np.allclose(
-                    [stored.kappa, stored.R, stored.k_pump],
-                    [gains.kappa, gains.R, gains.k_pump],
+                    [stored.kappa, stored.R, stored.k_pump, stored.sync_rate, stored.sync_ratio],
+                    [gains.kappa, gains.R, gains.k_pump, gains.sync_rate, gains.sync_ratio],
                     rtol=1e-12,
                 ):
                     raise RuntimeError(

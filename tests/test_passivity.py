@@ -79,48 +79,60 @@ def _closed_loop(model, ctrl, tau_d):
         qdd = np.linalg.solve(
             model.mass_matrix(q), out.tau + tau_d - model.coriolis(q, qd) - model.gravity(q)
         )
-        return np.concatenate(
-            [qd, qdd, [sd, out.s_dd, out.sigma_dot, out.dissipation, out.pump_power, qd @ tau_d]]
-        )
+        flows = [out.dissipation, out.pump_power, qd @ tau_d, out.sync_power]
+        return np.concatenate([qd, qdd, [sd, out.s_dd, out.sigma_dot, *flows]])
 
     return rhs
 
 
 @pytest.mark.parametrize(
-    ("k_pump", "tau_d"),
-    [(0.0, np.zeros(2)), (4.0, np.zeros(2)), (0.0, np.array([1.5, -0.8]))],
-    ids=["passive", "pump", "disturbed"],
+    ("k_pump", "tau_d", "sync_rate"),
+    [
+        (0.0, np.zeros(2), 0.0),
+        (4.0, np.zeros(2), 0.0),
+        (0.0, np.array([1.5, -0.8]), 0.0),
+        (0.0, np.zeros(2), 2.0),
+    ],
+    ids=["passive", "pump", "disturbed", "resync"],
 )
-def test_theorem_4_1_energy_balance_exact_model(k_pump, tau_d) -> None:
+def test_theorem_4_1_energy_balance_exact_model(k_pump, tau_d, sync_rate) -> None:
     """Along the closed loop integrated to 1e-10 relative accuracy (analytic two-link arm):
-    Ė = −R s̃̇² + pump power + q̇ᵀτ_d; with k = 0 and τ_d = 0, E is non-increasing."""
+    Ė = −R s̃̇² + pump power + q̇ᵀτ_d (+ the low-speed re-synchronisation's
+    ``sync_power`` when it is on); with k = 0, τ_d = 0 and no re-synchronisation, E is
+    non-increasing."""
     model = TwoLinkAnalyticModel()
     tables = PathTables(default_path(two_link()), model)
-    ctrl = PassivityController(
-        model, tables, PassivityGains(K=20.0, kappa=2.0, R=0.5, k_pump=k_pump)
-    )
+    gains = PassivityGains(K=20.0, kappa=2.0, R=0.5, k_pump=k_pump, sync_rate=sync_rate)
+    ctrl = PassivityController(model, tables, gains)
     s0 = 0.4
     ref = tables.exact(s0)
     q0 = ref.q + np.array([0.05, -0.04])  # off the path, moving: speed stays away from 0
-    x0 = np.concatenate([q0, 1.1 * ref.qd, [s0 + 0.03, 0.9, s0, 0.0, 0.0, 0.0]])
+    # The re-synchronisation acts below speed ratio 0.5: start slow, σ behind the arm.
+    # (1 s: later the arm of that run slows through zero speed, where √(q̇ᵀMq̇) is stiff.)
+    qd0, sigma0, t_end = (0.3 * ref.qd, s0 - 0.1, 1.0) if sync_rate else (1.1 * ref.qd, s0, 2.0)
+    x0 = np.concatenate([q0, qd0, [s0 + 0.03, 0.9, sigma0, 0.0, 0.0, 0.0, 0.0]])
     sol = solve_ivp(
         _closed_loop(model, ctrl, tau_d),
-        (0.0, 2.0),
+        (0.0, t_end),
         x0,
         method="DOP853",
         rtol=1e-10,
         atol=1e-12,
         dense_output=False,
-        t_eval=np.linspace(0.0, 2.0, 201),
+        t_eval=np.linspace(0.0, t_end, 201),
     )
     assert sol.success
     energy = np.array([ctrl.law(x[:2], x[2:4], *x[4:7]).energy for x in sol.y.T])
-    dissipated, pumped, injected = sol.y[7], sol.y[8], sol.y[9]
-    balance = energy - energy[0] + dissipated - pumped - injected
+    dissipated, pumped, injected, synced = sol.y[7], sol.y[8], sol.y[9], sol.y[10]
+    balance = energy - energy[0] + dissipated - pumped - injected - synced
     assert np.abs(balance).max() < 1e-7
     assert dissipated[-1] > 1e-3  # the check is not vacuous: R s̃̇² did work
-    if k_pump == 0.0 and not tau_d.any():
-        assert np.diff(energy).max() < 1e-9
+    if sync_rate:
+        assert np.abs(synced).max() > 5e-4  # the re-synchronisation's flow is not vacuous
+    else:
+        assert np.all(synced == 0.0)
+        if k_pump == 0.0 and not tau_d.any():
+            assert np.diff(energy).max() < 1e-9
 
 
 def test_theorem_4_1_in_simulation_converges_with_the_rate() -> None:
