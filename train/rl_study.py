@@ -229,32 +229,35 @@ def final_table(df: pd.DataFrame, runs: Sequence[Run], reference: str, resamples
     steps = final_steps(runs)
     lines = [
         "| disturbance | policy | path-dist RMS per seed (rad) | pooled mean (rad) | "
-        f"Δ vs {reference} alone, 95% CI | failures |",
-        "| --- | --- | --- | ---: | --- | ---: |",
+        f"Δ vs {reference} alone, 95% CI | time-indexed RMSE (rad) | failures |",
+        "| --- | --- | --- | ---: | --- | ---: | ---: |",
     ]
     key = ["disturbance", "level", "seed", "episode"]
     for dist, gd in df.groupby("disturbance", sort=False):
         ref = gd[gd["controller"] == reference].set_index(key)["path_dist_rms"]
         baselines = [c for c in gd["controller"].unique() if not c.startswith("sb3:")]
         for ctrl in baselines:
-            x = gd[gd["controller"] == ctrl]["path_dist_rms"].to_numpy(float)
-            lines.append(f"| {dist} | {ctrl} alone | — | {np.mean(x):.3e} | — | "
-                         f"{int(gd[gd['controller'] == ctrl]['failed'].sum())} |")  # fmt: skip
+            g = gd[gd["controller"] == ctrl]
+            lines.append(
+                f"| {dist} | {ctrl} alone | — | {g['path_dist_rms'].mean():.3e} | — | "
+                f"{g['time_err_rms'].mean():.2e} | {int(g['failed'].sum())} |"
+            )
         for group in sorted({r.group for r in runs}):
-            per_seed, diffs, fails = [], [], 0
+            per_seed, diffs, time_err, fails = [], [], [], 0
             for r in sorted((r for r in runs if r.group == group), key=lambda r: r.seed):
                 g = gd[gd["controller"] == f"sb3:{r.path}@{steps}"].set_index(key)
                 per_seed.append(float(g["path_dist_rms"].mean()))
                 common = g.index.intersection(ref.index)
                 diffs.extend((g.loc[common, "path_dist_rms"] - ref.loc[common]).tolist())
                 fails += int(g["failed"].sum())
+                time_err.extend(g["time_err_rms"].tolist())
             d = np.asarray(diffs)
             lo, hi = bootstrap_ci(d, np.mean, resamples, 0)
             lines.append(
                 f"| {dist} | {group} SAC @ {steps} steps | "
                 + ", ".join(f"{v:.2e}" for v in per_seed)
                 + f" | {np.mean(per_seed):.3e} | {np.mean(d):+.2e} [{lo:+.2e}, {hi:+.2e}]"
-                + f" | {fails} |"
+                + f" | {np.mean(time_err):.2e} | {fails} |"
             )
     return "\n".join(lines)
 
