@@ -16,8 +16,11 @@ $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m pip install --quiet -c constraints.txt -e ".[dev]"
 	touch $(STAMP)
 
+# The main job: two paired sweeps (iiwa, model-based controllers; two-link with the shipped
+# residual SAC). --resume: a re-run completes an interrupted sweep or re-summarizes a done one.
 run: setup
-	$(PY) -m train.evaluate --config train/configs/main.yml --out results/main --no-progress
+	$(PY) -m train.evaluate --config train/configs/main.yml --out results/main --no-progress --resume
+	$(PY) -m train.evaluate --config train/configs/main_rl.yml --out results/main_rl --no-progress --resume
 
 lint: setup
 	$(PY) -m ruff check .
