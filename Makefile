@@ -17,10 +17,11 @@ $(STAMP): pyproject.toml constraints.txt
 	touch $(STAMP)
 
 # The main job: two paired sweeps (iiwa, model-based controllers; two-link with the shipped
-# residual SAC). --resume: a re-run completes an interrupted sweep or re-summarizes a done one.
+# residual SAC). No --resume: results of older code or another model are never reused
+# silently; an existing results/ folder is refused with a message saying what to do.
 run: setup
-	$(PY) -m train.evaluate --config train/configs/main.yml --out results/main --no-progress --resume
-	$(PY) -m train.evaluate --config train/configs/main_rl.yml --out results/main_rl --no-progress --resume
+	$(PY) -m train.evaluate --config train/configs/main.yml --out results/main --no-progress
+	$(PY) -m train.evaluate --config train/configs/main_rl.yml --out results/main_rl --no-progress
 
 lint: setup
 	$(PY) -m ruff check .

@@ -324,6 +324,7 @@ class PassivityController:
                 psi=out.psi,
                 pump_power=out.pump_power,
                 dissipation=out.dissipation,
+                sync_power=out.sync_power,
                 path_error=out.path_error,
             )
         return d

@@ -67,3 +67,30 @@ def test_runs_that_differ_in_what_they_share_are_refused(study: Path, tmp_path: 
         discover(root)
     with pytest.raises(InvalidConfigError, match="no finished runs"):
         discover(tmp_path / "empty")
+
+
+def test_runs_of_another_algorithm_are_refused(study: Path, tmp_path: Path) -> None:
+    root = tmp_path / "algos"
+    shutil.copytree(study / "pure_s0", root / "a")
+    shutil.copytree(study / "pure_s1", root / "b")
+    cfg_file = root / "b" / "config.yml"
+    cfg = yaml.safe_load(cfg_file.read_text())
+    cfg["config"]["algo"] = "td3"
+    cfg_file.write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InvalidConfigError, match="algo"):
+        discover(root)
+
+
+def test_a_normalized_run_without_its_statistics_is_refused(study: Path, tmp_path: Path) -> None:
+    """Evaluating a VecNormalize run on raw observations would be silently wrong."""
+    from train.eval_episode import EpisodeSettings, Task, run_episode
+
+    run = tmp_path / "run"
+    shutil.copytree(study / "residual_s0", run)
+    (run / "vecnormalize.pkl").unlink()
+    settings = EpisodeSettings(
+        env_id="ptrack_gym/TwoLinkTrack-v0", episode_s=0.2, control_hz=250.0,
+        start="on_path", failure_distance_rad=0.5, recovery_threshold_rad=0.01,
+    )  # fmt: skip
+    with pytest.raises(InvalidConfigError, match=r"vecnormalize\.pkl is missing"):
+        run_episode(Task(f"sb3:{run}", "none", 0.0, 0, 0), settings)

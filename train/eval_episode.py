@@ -167,6 +167,10 @@ def _sb3_policy(
     )
     model = ALGOS[c["algo"]].load(str(model_zip), device="cpu")
     stats = None
+    if derived.get("vec_normalize") and not stats_pkl.exists():
+        raise InvalidConfigError(
+            f"{controller}: the run normalizes observations but {stats_pkl} is missing"
+        )
     if stats_pkl.exists():
         with stats_pkl.open("rb") as fh:
             stats = pickle.load(fh)  # a VecNormalize without its venv: normalize_obs works

@@ -260,10 +260,14 @@ def _run_ray(
 
 
 def run_sweep(
-    cfg: EvalConfig, resume: bool = False, progress: bool = True, show: bool = True
+    cfg: EvalConfig,
+    resume: bool = False,
+    progress: bool = True,
+    show: bool = True,
+    module: str = "train.evaluate",
 ) -> Path:
     """Run (or resume) the sweep of ``cfg``; return the output folder. ``show`` prints
-    the summary table."""
+    the summary table; ``module`` names the entry point recorded in ``command.txt``."""
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     episodes = out / "episodes.csv"
@@ -276,7 +280,7 @@ def run_sweep(
         _check_same_sweep(cfg, out / "config.yml")
     (out / "config.yml").write_text(yaml.safe_dump(dataclasses.asdict(cfg), sort_keys=False))
     (out / "command.txt").write_text(
-        shlex.join([sys.executable, "-m", "train.evaluate", *sys.argv[1:]]) + "\n"
+        shlex.join([sys.executable, "-m", module, *sys.argv[1:]]) + "\n"
     )
     tasks = [t for t in cfg.tasks() if t.key() not in finished]
     example_condition = _example_condition(cfg)

@@ -45,7 +45,10 @@ from train.results import bootstrap_ci, load_frame
 _CKPT = re.compile(r"rl_model_(\d+)_steps\.zip$")
 
 #: The run-config keys every run of a study must share.
-SHARED_KEYS = ("env_id", "disturbance", "episode_s", "start", "reward_weights")
+SHARED_KEYS = (
+    "algo", "env_id", "disturbance", "episode_s", "start", "reward_weights",
+    "scale_fraction", "zero_init_residual", "hyperparams", "overrides",
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -113,6 +116,8 @@ def sweep_config(runs: Sequence[Run], episodes: int, out: Path, workers: int) ->
     if preset in ("", "none"):
         raise InvalidConfigError("the study's runs were trained without a disturbance")
     bases = sorted({r.base for r in runs if r.base != "none"}) or ["passivity"]
+    if len(bases) > 1:
+        raise InvalidConfigError(f"the runs have different residual bases {bases}: one per study")
     baselines = list(dict.fromkeys([*bases, "computed_torque"]))
     entries = [f"sb3:{r.path}@{s}" for r in runs for s in r.checkpoints]
     return EvalConfig(
@@ -156,14 +161,16 @@ def eval_callback_curves(runs: Sequence[Run]) -> pd.DataFrame:
     """The training runs' own EvalCallback logs: columns group, seed, steps, return."""
     rows = []
     for r in runs:
-        for f in sorted((r.path / "eval").glob("from_*/evaluations.npz")):
+        logs = (r.path / "eval").glob("from_*/evaluations.npz")
+        for f in sorted(logs, key=lambda f: int(f.parent.name.removeprefix("from_"))):
             log = np.load(f)
             for steps, results in zip(log["timesteps"], log["results"], strict=True):
                 rows.append(
                     {"group": r.group, "seed": r.seed, "steps": int(steps),
                      "return": float(np.mean(results))}
                 )  # fmt: skip
-    return pd.DataFrame(rows).drop_duplicates(["group", "seed", "steps"], keep="last")
+    frame = pd.DataFrame(rows, columns=["group", "seed", "steps", "return"])
+    return frame.drop_duplicates(["group", "seed", "steps"], keep="last")
 
 
 def plot_curves(
@@ -205,10 +212,13 @@ def plot_curves(
         ax.plot(med.index, -med.values, color=colors.get(group, "k"), lw=2.2, label=group)
     ax.set_yscale("log")
     ax.set_xlabel("training steps")
-    ax.set_ylabel("− episode return (EvalCallback, 5 episodes)")
+    ax.set_ylabel("− episode return (the runs' EvalCallback)")
     ax.set_title("training-time evaluation (training disturbance)")
+    if returns.empty:
+        ax.text(0.5, 0.5, "no EvalCallback logs", ha="center", transform=ax.transAxes)
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7)
+    if not returns.empty:
+        ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -254,7 +264,7 @@ def final_table(df: pd.DataFrame, runs: Sequence[Run], reference: str, resamples
             d = np.asarray(diffs)
             lo, hi = bootstrap_ci(d, np.mean, resamples, 0)
             lines.append(
-                f"| {dist} | {group} SAC @ {steps} steps | "
+                f"| {dist} | {group} {str(runs[0].config['algo']).upper()} @ {steps} steps | "
                 + ", ".join(f"{v:.2e}" for v in per_seed)
                 + f" | {np.mean(per_seed):.3e} | {np.mean(d):+.2e} [{lo:+.2e}, {hi:+.2e}]"
                 + f" | {np.mean(time_err):.2e} | {fails} |"
@@ -275,7 +285,9 @@ def main(argv: Sequence[str] | None = None) -> Path:
     runs = discover(args.runs)
     cfg = sweep_config(runs, args.episodes, args.out, args.workers)
     cfg.validate()
-    out = run_sweep(cfg, resume=args.resume, progress=not args.no_progress, show=False)
+    out = run_sweep(
+        cfg, resume=args.resume, progress=not args.no_progress, show=False, module="train.rl_study"
+    )
     df = load_frame(out / "episodes.csv")
     curves = curve_frame(df, runs)
     curves.to_csv(out / "learning_curves.csv", index=False)
