@@ -448,7 +448,6 @@ class PathTables:
         c = (m0 + m1 - 2.0 * delta) / h**3
         pairs = ((a, a), (a, b), (a, c), (b, b), (b, c), (c, c))
         self._h = h
-        self._grid_qd = np.ascontiguousarray(grid_qd)
         self._grid_wrapped = self.grid_q[np.arange(-stride, n_grid + stride) % n_grid]
         self._coarse_q = np.ascontiguousarray(self.grid_q[::stride])
         self._coarse_sq = np.einsum("ij,ij->i", self._coarse_q, self._coarse_q)
@@ -483,7 +482,7 @@ class PathTables:
         k = int(np.argmin(d2))
         j = (i - stride + k) % n_grid
         node_d2 = float(d2[k])
-        if float(fine[k] @ self._grid_qd[j]) <= 0.0:  # (q − q_j)ᵀq_r' ≥ 0: minimum ahead
+        if float(fine[k] @ self._hermite[j, 0]) <= 0.0:  # (q − q_j)ᵀq_r'(s_j) ≥ 0: ahead
             interval, e0, p0, node_t = j, -fine[k], node_d2, 0.0
         else:
             interval = (j - 1) % n_grid
