@@ -55,30 +55,24 @@ def test_study_writes_curves_figure_and_final_table(study: Path, tmp_path: Path)
     assert f"{value:.2e}" in table
 
 
-def test_runs_that_differ_in_what_they_share_are_refused(study: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize(("key", "value"), [("disturbance", "push:1.0"), ("algo", "td3")])
+def test_runs_that_differ_in_what_they_share_are_refused(
+    study: Path, tmp_path: Path, key: str, value: str
+) -> None:
     root = tmp_path / "mixed"
     shutil.copytree(study / "pure_s0", root / "a")
     shutil.copytree(study / "pure_s1", root / "b")
     cfg_file = root / "b" / "config.yml"
     cfg = yaml.safe_load(cfg_file.read_text())
-    cfg["config"]["disturbance"] = "push:1.0"
+    cfg["config"][key] = value
     cfg_file.write_text(yaml.safe_dump(cfg))
-    with pytest.raises(InvalidConfigError, match="disturbance"):
+    with pytest.raises(InvalidConfigError, match=key):
         discover(root)
+
+
+def test_a_folder_without_finished_runs_is_refused(tmp_path: Path) -> None:
     with pytest.raises(InvalidConfigError, match="no finished runs"):
         discover(tmp_path / "empty")
-
-
-def test_runs_of_another_algorithm_are_refused(study: Path, tmp_path: Path) -> None:
-    root = tmp_path / "algos"
-    shutil.copytree(study / "pure_s0", root / "a")
-    shutil.copytree(study / "pure_s1", root / "b")
-    cfg_file = root / "b" / "config.yml"
-    cfg = yaml.safe_load(cfg_file.read_text())
-    cfg["config"]["algo"] = "td3"
-    cfg_file.write_text(yaml.safe_dump(cfg))
-    with pytest.raises(InvalidConfigError, match="algo"):
-        discover(root)
 
 
 def test_a_normalized_run_without_its_statistics_is_refused(study: Path, tmp_path: Path) -> None:
