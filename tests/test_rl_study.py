@@ -16,8 +16,9 @@ from train.train import main as train_main
 
 
 def _train(out: Path, residual: str, seed: int) -> None:
+    zero_init = ["--zero-init-residual"] if residual != "none" else []
     train_main(
-        ["--algo", "sac", "--residual", residual, "--steps", "200", "--out", str(out),
+        [*zero_init, "--algo", "sac", "--residual", residual, "--steps", "200", "--out", str(out),
          "--seed", str(seed), "--disturbance", "impulse:1.0", "--episode-s", "0.2",
          "--eval-freq", "100", "--eval-episodes", "1", "--checkpoint-freq", "100",
          "--set", "learning_starts=50", "--set", "policy_kwargs=dict(net_arch=[16])"]
@@ -55,10 +56,15 @@ def test_study_writes_curves_figure_and_final_table(study: Path, tmp_path: Path)
     assert f"{value:.2e}" in table
 
 
-@pytest.mark.parametrize(("key", "value"), [("disturbance", "push:1.0"), ("algo", "td3")])
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [("disturbance", "push:1.0"), ("algo", "td3"), ("scale_fraction", 0.2)],
+)
 def test_runs_that_differ_in_what_they_share_are_refused(
-    study: Path, tmp_path: Path, key: str, value: str
+    study: Path, tmp_path: Path, key: str, value: object
 ) -> None:
+    """Study-wide keys differ between any two runs; group keys (the residual scale)
+    between two runs of one group — here two pure runs, whose scale is otherwise moot."""
     root = tmp_path / "mixed"
     shutil.copytree(study / "pure_s0", root / "a")
     shutil.copytree(study / "pure_s1", root / "b")

@@ -47,8 +47,12 @@ _CKPT = re.compile(r"rl_model_(\d+)_steps\.zip$")
 #: The run-config keys every run of a study must share.
 SHARED_KEYS = (
     "algo", "env_id", "disturbance", "episode_s", "start", "reward_weights",
-    "scale_fraction", "zero_init_residual", "hyperparams", "overrides",
+    "hyperparams", "overrides",
 )  # fmt: skip
+
+#: The keys the runs of one group must share too (they mean nothing for pure RL, so a
+#: pure and a residual group may differ in them).
+GROUP_KEYS = ("scale_fraction", "zero_init_residual")
 
 
 @dataclass(frozen=True)
@@ -95,12 +99,17 @@ def discover(root: Path) -> list[Run]:
     if not runs:
         raise InvalidConfigError(f"no finished runs (config.yml + model.zip) under {root}")
     first = runs[0]
+    group_first = {}
+    for r in runs:
+        group_first.setdefault(r.group, r)
     for r in runs[1:]:
-        for key in SHARED_KEYS:
-            if r.config.get(key) != first.config.get(key):
+        pairs = [(key, first) for key in SHARED_KEYS]
+        pairs += [(key, group_first[r.group]) for key in GROUP_KEYS]
+        for key, other in pairs:
+            if r.config.get(key) != other.config.get(key):
                 raise InvalidConfigError(
                     f"{r.path} has {key}={r.config.get(key)!r}, "
-                    f"{first.path} has {first.config.get(key)!r}"
+                    f"{other.path} has {other.config.get(key)!r}"
                 )
         if r.control_hz != first.control_hz:
             raise InvalidConfigError(f"{r.path} runs at {r.control_hz} Hz, {first.path} at "
