@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from ptrack_gym.errors import InvalidConfigError
-from train.rl_study import discover, main
+from train.rl_study import discover, main, sweep_config
 from train.train import main as train_main
 
 
@@ -94,3 +94,17 @@ def test_a_normalized_run_without_its_statistics_is_refused(study: Path, tmp_pat
     )  # fmt: skip
     with pytest.raises(InvalidConfigError, match=r"vecnormalize\.pkl is missing"):
         run_episode(Task(f"sb3:{run}", "none", 0.0, 0, 0), settings)
+
+
+def test_residual_runs_on_different_bases_are_refused(study: Path, tmp_path: Path) -> None:
+    """Each group's Δ is against its base: a study has one base, else it is refused."""
+    root = tmp_path / "bases"
+    shutil.copytree(study / "residual_s0", root / "a")
+    shutil.copytree(study / "residual_s0", root / "b")
+    cfg_file = root / "b" / "config.yml"
+    cfg = yaml.safe_load(cfg_file.read_text())
+    cfg["config"]["residual"] = "computed_torque"
+    cfg_file.write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InvalidConfigError, match="different residual bases"):
+        sweep_config(discover(root), episodes=1, out=tmp_path / "out", workers=1)
+    assert not (tmp_path / "out").exists()
