@@ -1,18 +1,31 @@
 # The README's two commands: `make run` and `make test`. Both set up .venv first.
-PYTHON ?= python3.11
+#
+# Python: python3.11 when it is on PATH (the version these machines test), otherwise the
+# newest python3.1x >= 3.10 found on PATH; `make PYTHON=/path/to/python3.x` chooses one.
+# On 3.12 and later pip builds PyBullet 3.2.7 from source (no wheel): install a C++
+# compiler first (Debian/Ubuntu: `apt install g++ python3-dev`).
+PYTHON ?= $(shell for v in 3.11 3.14 3.13 3.12 3.10; do \
+	command -v python$$v >/dev/null 2>&1 && { echo python$$v; break; }; done)
+# torch first: on these machines torch==2.13.0 resolves to a local CPU build, and the
+# pinned version then satisfies stable-baselines3 without downloading CUDA packages.
+# Elsewhere choose your own, e.g. make TORCH='torch --index-url https://download.pytorch.org/whl/cpu'
+TORCH ?= torch==2.13.0
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench clean
+.PHONY: setup run test lint bench clean check-python
 
 setup: $(STAMP)
 
-# torch==2.13.0 first: it resolves to the machine's local CPU build, and the pinned
-# version then satisfies stable-baselines3 without downloading CUDA packages.
-$(STAMP): pyproject.toml constraints.txt
+check-python:
+	@test -n "$(PYTHON)" || { echo "make: no Python 3.10-3.14 found on PATH: install python3.11 (or 3.10, 3.12, 3.13), or pass PYTHON=/path/to/python3.x" >&2; exit 1; }
+	@$(PYTHON) -c 'import sys; sys.exit(0 if (3, 10) <= sys.version_info[:2] < (3, 15) else 1)' \
+		|| { echo "make: $(PYTHON) is not Python 3.10-3.14; pass PYTHON=/path/to/python3.x" >&2; exit 1; }
+
+$(STAMP): pyproject.toml constraints.txt | check-python
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet torch==2.13.0
+	$(PY) -m pip install --quiet $(TORCH)
 	$(PY) -m pip install --quiet -c constraints.txt -e ".[dev]"
 	touch $(STAMP)
 
@@ -27,8 +40,9 @@ lint: setup
 	$(PY) -m ruff check .
 	$(PY) -m ruff format --check .
 
+# In parallel over the cores (pytest-xdist); one BLAS/torch thread per worker.
 test: lint
-	$(PY) -m pytest -q
+	OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n auto
 
 bench: setup
 	$(PY) bench/env_step.py

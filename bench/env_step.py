@@ -172,7 +172,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     ]
     print(
         f"ptrack_gym {ptrack_gym.__version__}, pybullet {importlib.metadata.version('pybullet')}, "
-        f"Python {platform.python_version()}, {os.cpu_count()} CPUs; "
+        f"Python {platform.python_version()}, {len(os.sched_getaffinity(0))} usable cores; "
         f"physics {PHYSICS_HZ:g} Hz, zero action, median of {args.repeats} x "
         f"{args.steps} steps after {args.warmup} warm-up steps\n"
     )

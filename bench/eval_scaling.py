@@ -1,21 +1,34 @@
-"""Episodes per second of the evaluation sweep with 1 and 2 worker processes, in one run.
+"""Episodes per second of the evaluation sweep against the number of worker processes.
 
 The same small sweep (two-link, 2 controllers × 2 presets × ``--seeds`` seeds,
-``--episode-s``-second episodes) runs once with ``workers=1`` and once with
-``workers=2`` into temporary folders; the ratio is the parallel speed-up (issue target:
-≥ 1.7 on 2 cores). Process start-up is included: it is part of what a user waits for.
+``--episode-s``-second episodes) runs with 1, 2, 4, … workers, up to the cores this
+process may use (``os.sched_getaffinity``; the last count is the core count itself when
+it is not a power of two), each into a temporary folder, in one run. It prints each
+count's wall time, episodes/s, speed-up over one worker and parallel efficiency
+(speed-up / workers). Process start-up is included: it is part of what a user waits for.
 
-Run: ``python bench/eval_scaling.py [--seeds 8] [--episode-s 4]``.
+Run: ``python bench/eval_scaling.py [--seeds 8] [--episode-s 4] [--max-workers N]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
 from pathlib import Path
 
 from train.evaluate import load_config, run_sweep
+
+
+def worker_counts(cores: int) -> list[int]:
+    """1, 2, 4, … up to ``cores``, ending with ``cores`` itself."""
+    counts = [1]
+    while counts[-1] * 2 <= cores:
+        counts.append(counts[-1] * 2)
+    if counts[-1] != cores:
+        counts.append(cores)
+    return counts
 
 
 def sweep_seconds(workers: int, seeds: int, episode_s: float, folder: Path) -> tuple[float, int]:
@@ -43,15 +56,26 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=8)
     parser.add_argument("--episode-s", type=float, default=4.0)
+    parser.add_argument(
+        "--max-workers", type=int, default=None, help="default: the cores this process may use"
+    )
     args = parser.parse_args()
+    cores = args.max_workers or len(os.sched_getaffinity(0))
+    rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        t1, n = sweep_seconds(1, args.seeds, args.episode_s, Path(tmp))
-        t2, _ = sweep_seconds(2, args.seeds, args.episode_s, Path(tmp))
-    print("| workers | episodes | wall (s) | episodes/s |")
-    print("|---:|---:|---:|---:|")
-    print(f"| 1 | {n} | {t1:.1f} | {n / t1:.2f} |")
-    print(f"| 2 | {n} | {t2:.1f} | {n / t2:.2f} |")
-    print(f"\nspeed-up 2 vs 1 worker: {t1 / t2:.2f}")
+        for workers in worker_counts(cores):
+            wall, n = sweep_seconds(workers, args.seeds, args.episode_s, Path(tmp))
+            rows.append((workers, n, wall))
+    base = rows[0][2]
+    print(f"cores available: {len(os.sched_getaffinity(0))}")
+    print("| workers | episodes | wall (s) | episodes/s | speed-up | efficiency |")
+    print("|---:|---:|---:|---:|---:|---:|")
+    for workers, n, wall in rows:
+        speedup = base / wall
+        print(
+            f"| {workers} | {n} | {wall:.1f} | {n / wall:.2f} | {speedup:.2f} "
+            f"| {speedup / workers:.2f} |"
+        )
 
 
 if __name__ == "__main__":

@@ -43,8 +43,7 @@ def numbers(path):
 @pytest.fixture(scope="module")
 def full_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("eval")
-    out = run_sweep(tiny(tmp, "full", "workers=1", "video=true"), progress=False)
-    return out
+    return run_sweep(tiny(tmp, "full", "workers=1"), progress=False)
 
 
 def test_tiny_sweep_writes_tables_provenance_and_plots(full_run) -> None:
@@ -72,8 +71,36 @@ def test_tiny_sweep_writes_tables_provenance_and_plots(full_run) -> None:
         "example_computed_torque.png",
     ):
         assert (out / name).stat().st_size > 0, name
+    assert not (out / "videos").exists()  # video is opt-in
+
+
+def test_video_records_the_example_episode_of_every_controller(tmp_path) -> None:
+    pytest.importorskip("moviepy", reason="the optional 'video' extra (MoviePy) is not installed")
+    out = run_sweep(
+        tiny(tmp_path, "video", "workers=1", "seeds=1", "plots=false", "video=true"),
+        progress=False,
+    )
     for ctrl in ("passivity", "computed_torque"):
         assert (out / "videos" / ctrl / f"{ctrl}-episode-0.mp4").stat().st_size > 1000
+
+
+@pytest.mark.parametrize(
+    ("module", "override"), [("moviepy", "video=true"), ("ray", "backend=ray")]
+)
+def test_an_option_whose_extra_is_missing_is_refused_before_running(
+    tmp_path, monkeypatch, module, override
+) -> None:
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == module else real(name, *a)
+    )
+    with pytest.raises(
+        InvalidConfigError, match=f"'{'video' if module == 'moviepy' else 'ray'}' extra"
+    ):
+        tiny(tmp_path, "x", override)
+    assert not (tmp_path / "x").exists()
 
 
 def test_resume_completes_without_duplicates(full_run, tmp_path) -> None:

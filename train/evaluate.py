@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib.util
 import os
 import shlex
 import sys
@@ -152,6 +153,10 @@ class EvalConfig:
             raise InvalidConfigError(f"reference {self.reference!r} is not among the controllers")
         if not self.episode_s > 0:
             raise InvalidConfigError("episode_s must be positive")
+        if self.backend == "ray":
+            require_extra("ray", "ray", "backend: ray")
+        if self.video:
+            require_extra("moviepy", "video", "video: true")
 
     def settings(self) -> EpisodeSettings:
         return EpisodeSettings(
@@ -176,6 +181,16 @@ class EvalConfig:
             for e in range(self.episodes_per_seed)
             for c in self.controllers
         ]
+
+
+def require_extra(module: str, extra: str, what: str) -> None:
+    """Raise :class:`InvalidConfigError` if the optional ``module`` (of the package extra
+    ``extra``) is not installed, naming the option that needs it."""
+    if importlib.util.find_spec(module) is None:
+        raise InvalidConfigError(
+            f"{what} needs the optional '{extra}' extra ({module} is not installed): "
+            f"pip install 'ptrack_gym[{extra}]'"
+        )
 
 
 def load_config(path: Path | None, overrides: Sequence[str]) -> EvalConfig:
@@ -233,12 +248,8 @@ def _run_ray(
     address: str | None,
     example: set[Task],
 ) -> Iterator[tuple[dict[str, Any], Any, Task]]:
-    try:
-        import ray
-    except ImportError as exc:  # pragma: no cover - depends on the optional extra
-        raise InvalidConfigError(
-            "--backend ray needs the 'ray' extra: pip install 'ptrack_gym[ray]'"
-        ) from exc
+    import ray  # validate() checked that the extra is installed
+
     started = not ray.is_initialized()
     if started:
         if address:
@@ -287,7 +298,7 @@ def run_sweep(
     example = {
         t for t in cfg.tasks() if (t.disturbance, t.level, t.seed, t.episode) == example_condition
     }
-    workers = cfg.workers or os.cpu_count() or 1
+    workers = cfg.workers or len(os.sched_getaffinity(0))
     settings = cfg.settings()
     writer = EpisodeWriter(episodes)
     traces: dict[str, Any] = {}
