@@ -6,15 +6,52 @@
     \\qquad e = q_r - q, \\quad \\dot e = q_r' - \\dot q
 
 With the exact model the closed loop is linear and decoupled, ë + K_d ė + K_p e = 0.
+Default gains: K_p = ω² I (1/s²), K_d = 2ζω I (1/s) — a double pole at −ω for ζ = 1 —
+with ω the robot profile's ``controller_gains["computed_torque"]["omega"]`` (rad/s),
+capped at α / dt (:func:`agents.gains.cap_bandwidth`).
 """
 
 from __future__ import annotations
 
-from agents.base import FloatArray
-from agents.gains import ComputedTorqueGains, gain_vector
-from agents.reference_clock import ReferenceClock, error_diagnostics
+from dataclasses import dataclass
+
+from agents.base import ControlContext, FeatureBlock, FloatArray
+from agents.gains import Gain, cap_bandwidth, check_gain, gain_vector, rates
+from agents.reference_clock import ReferenceClock, error_diagnostics, time_indexed_features
 from ptrack_gym.paths import ReferencePath
 from ptrack_gym.robots.model import RobotModel
+
+NAME = "computed_torque"
+#: Generic default rates: ω (rad/s), ζ.
+DEFAULT_RATES = {"omega": 20.0, "zeta": 1.0}
+
+
+@dataclass(frozen=True)
+class ComputedTorqueGains:
+    """Gains of :class:`ComputedTorqueController`.
+
+    Attributes:
+        kp_1_s2: K_p (1/s²), the stiffness of the error dynamics ë + K_d ė + K_p e = 0.
+        kd_1_s: K_d (1/s), its damping.
+    """
+
+    kp_1_s2: Gain
+    kd_1_s: Gain
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kp_1_s2", check_gain(self.kp_1_s2, "kp_1_s2"))
+        object.__setattr__(self, "kd_1_s", check_gain(self.kd_1_s, "kd_1_s"))
+
+    @classmethod
+    def from_bandwidth(cls, omega_rad_s: float, zeta: float = 1.0) -> ComputedTorqueGains:
+        """K_p = ω², K_d = 2ζω on every joint."""
+        return cls(kp_1_s2=omega_rad_s**2, kd_1_s=2.0 * zeta * omega_rad_s)
+
+
+def default_gains(ctx: ControlContext) -> ComputedTorqueGains:
+    """The robot's default gains at the context's control rate (module docstring)."""
+    r = rates(DEFAULT_RATES, ctx.profile.controller_gains.get(NAME), NAME)
+    return ComputedTorqueGains.from_bandwidth(cap_bandwidth(r["omega"], ctx.dt_s), r["zeta"])
 
 
 class ComputedTorqueController:
@@ -65,3 +102,14 @@ class ComputedTorqueController:
         ``tracking_error`` |e| (rad) and ``velocity_error`` |ė| (rad/s) of the state
         passed to the last step (against q_r(s − dt))."""
         return dict(self._diag)
+
+    def residual_features(self, max_speed_rad_s: float) -> FeatureBlock:
+        """e, ė against the clock (see :func:`agents.reference_clock.time_indexed_features`)."""
+        return time_indexed_features(self.clock, self.n, max_speed_rad_s)
+
+
+def build(
+    ctx: ControlContext, gains: ComputedTorqueGains | None = None
+) -> ComputedTorqueController:
+    """The controller for a context, with its default gains unless ``gains`` is given."""
+    return ComputedTorqueController(ctx.model, ctx.path, gains or default_gains(ctx))

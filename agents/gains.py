@@ -1,28 +1,18 @@
-"""Gains of the classical baseline controllers, their validation, and per-robot defaults.
+"""Gain helpers shared by the controllers: diagonal gains, and the control-rate cap.
 
-Every gain is diagonal: a scalar (the same on every joint) or one positive number per
-joint. A diagonal gain is positive definite exactly when every entry is positive, and
-diagonal Λ and K_D commute, which the Slotine–Li Lyapunov argument needs (Λ K_D must be
-symmetric positive definite).
+Every classical gain here is diagonal: a scalar (the same on every joint) or one positive
+number per joint. A diagonal gain is positive definite exactly when every entry is
+positive, and diagonal Λ and K_D commute, which the Slotine–Li Lyapunov argument needs.
 
-The defaults (:func:`default_computed_torque_gains`, :func:`default_pd_gravity_gains`,
-:func:`default_slotine_li_gains`) were chosen by ``bench/baseline_gain_study.py`` for
-the env defaults (physics and control at 1 kHz, the robot's default path); the study
-and its table are in ``docs/baselines.md``. All three families are parametrised by one
-closed-loop bandwidth ω (rad/s) and, where the law has no inertia of its own, scaled
-by the joint inertias of the home pose, m = diag M(q_home) (kg·m²):
-
-* computed torque: K_p = ω² I (1/s²), K_d = 2ζω I (1/s) — the error obeys
-  ë + K_d ė + K_p e = 0, a double pole at −ω for ζ = 1;
-* PD + gravity: K_p = ω² diag(m) (N·m/rad), K_d = 2ζω diag(m) (N·m·s/rad) — the same
-  poles for a decoupled arm near home;
-* Slotine–Li: Λ = ω I (1/s), K_D = ω diag(m) (N·m·s/rad) — the linearised error obeys
-  (s + Λ)(s + M⁻¹K_D) e = 0, a double pole near −ω.
+Default gains are stated as rates (a closed-loop bandwidth ω in rad/s, …) in each robot's
+profile (``ptrack_gym/robots/<name>.py``, ``controller_gains``) and made absolute by each
+controller's ``default_gains`` with the robot's home-pose joint inertias. A default is
+*rate-aware*: no joint's natural frequency √(K_j / M_jj) may exceed
+:data:`MAX_FREQUENCY_PER_SAMPLE` · f_control (:func:`cap_stiffness`) — a discrete-time
+loop with a zero-order hold loses its continuous-time stability margin beyond that.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -32,19 +22,18 @@ from ptrack_gym.errors import InvalidConfigError
 #: A diagonal gain: one number for every joint, or one per joint.
 Gain = float | tuple[float, ...]
 
-#: diag M(q_home) (kg·m²) of the nominal PyBullet models, rounded to 4 significant
-#: digits (``BulletModel(make_robot(name)).mass_matrix(home_q_rad)``; the study prints
-#: the unrounded values).
-HOME_INERTIA_KGM2: dict[str, tuple[float, ...]] = {
-    "two_link": (0.6351, 0.08333),
-    "iiwa": (1.765, 2.587, 0.4941, 0.5367, 0.01265, 0.008761, 0.001),
-    "panda": (1.558, 2.351, 1.783, 1.651, 0.8305, 0.7371, 0.6),
-}
+#: α: the largest natural frequency of a joint's closed loop a default gain may give,
+#: in rad per control sample (ω_j · dt ≤ α).
+MAX_FREQUENCY_PER_SAMPLE = 0.2
 
 
-def _check_gain(value: Gain, name: str) -> Gain:
-    """Return ``value`` as a float or a tuple of floats, all finite and > 0, or raise."""
-    arr = np.asarray(value, dtype=np.float64)
+def check_gain(value: Gain, name: str) -> Gain:
+    """Return ``value`` as a float or a tuple of floats, all finite and > 0, or raise
+    :class:`InvalidConfigError` naming ``name``."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidConfigError(f"{name} must be numbers, got {value!r}") from None
     if arr.ndim > 1 or arr.size == 0:
         raise InvalidConfigError(
             f"{name} must be a positive number or a sequence of positive numbers (one per "
@@ -65,8 +54,7 @@ def gain_vector(value: Gain, n: int, name: str) -> FloatArray:
         InvalidConfigError: (a ``ValueError``) a non-positive or non-finite entry, or a
             sequence whose length is not ``n``.
     """
-    checked = _check_gain(value, name)
-    arr = np.asarray(checked, dtype=np.float64)
+    arr = np.asarray(check_gain(value, name), dtype=np.float64)
     if arr.ndim == 0:
         return np.full(n, float(arr))
     if arr.shape != (n,):
@@ -76,119 +64,36 @@ def gain_vector(value: Gain, n: int, name: str) -> FloatArray:
     return arr.copy()
 
 
-def _inertia(robot_name: str) -> FloatArray:
-    try:
-        return np.array(HOME_INERTIA_KGM2[robot_name])
-    except KeyError:
-        raise InvalidConfigError(
-            f"no default gains for robot {robot_name!r}; known: {sorted(HOME_INERTIA_KGM2)}"
-        ) from None
+def cap_stiffness(stiffness: FloatArray, inertia_kgm2: FloatArray, dt_s: float) -> FloatArray:
+    """K_j limited to (α / dt)² · M_jj: the joint's natural frequency √(K_j / M_jj) stays
+    ≤ α / dt (rad/s), α = :data:`MAX_FREQUENCY_PER_SAMPLE`, dt the control period (s).
+
+    ``stiffness`` (N·m/rad, or 1/s² per unit inertia with ``inertia_kgm2`` = 1)."""
+    if not (np.isfinite(dt_s) and dt_s > 0):
+        raise InvalidConfigError(f"the control period must be positive, got {dt_s!r}")
+    limit = (MAX_FREQUENCY_PER_SAMPLE / dt_s) ** 2 * np.asarray(inertia_kgm2, dtype=np.float64)
+    return np.minimum(np.asarray(stiffness, dtype=np.float64), limit)
 
 
-def _rounded(x: FloatArray) -> tuple[float, ...]:
+def cap_bandwidth(omega_rad_s: float, dt_s: float) -> float:
+    """ω limited to α / dt (rad/s) (see :func:`cap_stiffness`)."""
+    if not (np.isfinite(dt_s) and dt_s > 0):
+        raise InvalidConfigError(f"the control period must be positive, got {dt_s!r}")
+    return float(min(omega_rad_s, MAX_FREQUENCY_PER_SAMPLE / dt_s))
+
+
+def rounded(x: FloatArray) -> tuple[float, ...]:
     """Four significant digits, so the defaults read as plain numbers."""
     return tuple(float(f"{v:.4g}") for v in x)
 
 
-@dataclass(frozen=True)
-class ComputedTorqueGains:
-    """Gains of :class:`~agents.computed_torque.ComputedTorqueController`.
-
-    Attributes:
-        kp_1_s2: K_p (1/s²), the stiffness of the error dynamics ë + K_d ė + K_p e = 0.
-        kd_1_s: K_d (1/s), its damping.
-    """
-
-    kp_1_s2: Gain
-    kd_1_s: Gain
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "kp_1_s2", _check_gain(self.kp_1_s2, "kp_1_s2"))
-        object.__setattr__(self, "kd_1_s", _check_gain(self.kd_1_s, "kd_1_s"))
-
-    @classmethod
-    def from_bandwidth(cls, omega_rad_s: float, zeta: float = 1.0) -> ComputedTorqueGains:
-        """K_p = ω², K_d = 2ζω on every joint."""
-        return cls(kp_1_s2=omega_rad_s**2, kd_1_s=2.0 * zeta * omega_rad_s)
-
-
-@dataclass(frozen=True)
-class PDGravityGains:
-    """Gains of :class:`~agents.pd_gravity.PDGravityController`.
-
-    Attributes:
-        kp_nm_rad: K_p (N·m/rad).
-        kd_nms_rad: K_d (N·m·s/rad).
-    """
-
-    kp_nm_rad: Gain
-    kd_nms_rad: Gain
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "kp_nm_rad", _check_gain(self.kp_nm_rad, "kp_nm_rad"))
-        object.__setattr__(self, "kd_nms_rad", _check_gain(self.kd_nms_rad, "kd_nms_rad"))
-
-    @classmethod
-    def from_inertia(
-        cls, inertia_kgm2: FloatArray, omega_rad_s: float, zeta: float = 1.0
-    ) -> PDGravityGains:
-        """K_p = ω² m, K_d = 2ζω m, with m the joint inertias (kg·m²), e.g. diag M(q_home)."""
-        m = np.asarray(inertia_kgm2, dtype=np.float64)
-        return cls(
-            kp_nm_rad=_rounded(omega_rad_s**2 * m),
-            kd_nms_rad=_rounded(2.0 * zeta * omega_rad_s * m),
+def rates(defaults: dict[str, float], given: object, controller: str) -> dict[str, float]:
+    """A controller's rates: its generic ``defaults`` updated by the robot's ``given``
+    entry; an unknown rate name raises :class:`InvalidConfigError`."""
+    given = dict(given or {})  # type: ignore[call-overload]
+    unknown = sorted(set(given) - set(defaults))
+    if unknown:
+        raise InvalidConfigError(
+            f"unknown {controller} gain rate(s) {unknown}; known: {sorted(defaults)}"
         )
-
-
-@dataclass(frozen=True)
-class SlotineLiGains:
-    """Gains of :class:`~agents.slotine_li.SlotineLiController`.
-
-    Attributes:
-        lambda_1_s: Λ (1/s), the sliding-surface slope: r = ė + Λ e.
-        kd_nms_rad: K_D (N·m·s/rad), the damping injected on r.
-    """
-
-    lambda_1_s: Gain
-    kd_nms_rad: Gain
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "lambda_1_s", _check_gain(self.lambda_1_s, "lambda_1_s"))
-        object.__setattr__(self, "kd_nms_rad", _check_gain(self.kd_nms_rad, "kd_nms_rad"))
-
-    @classmethod
-    def from_inertia(cls, inertia_kgm2: FloatArray, omega_rad_s: float) -> SlotineLiGains:
-        """Λ = ω, K_D = ω m, with m the joint inertias (kg·m²): a double pole near −ω."""
-        m = np.asarray(inertia_kgm2, dtype=np.float64)
-        return cls(lambda_1_s=float(omega_rad_s), kd_nms_rad=_rounded(omega_rad_s * m))
-
-
-#: Default closed-loop bandwidths ω (rad/s) per controller and robot, from the study: the
-#: largest ω of the sweep (5, 7, 10, 14, 20, 28, 40) at which no run, from rest 0.1 rad
-#: off the path at four start phases, clips a torque. The answer is the same for the three
-#: controllers. The Panda's wrist (12 N·m limits against 0.6–0.83 kg·m² of URDF inertia)
-#: holds it at 7 rad/s.
-DEFAULT_BANDWIDTH_RAD_S: dict[str, dict[str, float]] = {
-    "computed_torque": {"two_link": 20.0, "iiwa": 20.0, "panda": 7.0},
-    "pd_gravity": {"two_link": 20.0, "iiwa": 20.0, "panda": 7.0},
-    "slotine_li": {"two_link": 20.0, "iiwa": 20.0, "panda": 7.0},
-}
-
-
-def default_computed_torque_gains(robot_name: str) -> ComputedTorqueGains:
-    """The study's computed-torque gains for ``robot_name`` ("two_link", "iiwa", "panda")."""
-    _inertia(robot_name)  # validates the name
-    omega = DEFAULT_BANDWIDTH_RAD_S["computed_torque"][robot_name]
-    return ComputedTorqueGains.from_bandwidth(omega)
-
-
-def default_pd_gravity_gains(robot_name: str) -> PDGravityGains:
-    """The study's PD + gravity gains for ``robot_name`` ("two_link", "iiwa", "panda")."""
-    m = _inertia(robot_name)
-    return PDGravityGains.from_inertia(m, DEFAULT_BANDWIDTH_RAD_S["pd_gravity"][robot_name])
-
-
-def default_slotine_li_gains(robot_name: str) -> SlotineLiGains:
-    """The study's Slotine–Li gains for ``robot_name`` ("two_link", "iiwa", "panda")."""
-    m = _inertia(robot_name)
-    return SlotineLiGains.from_inertia(m, DEFAULT_BANDWIDTH_RAD_S["slotine_li"][robot_name])
+    return {**defaults, **given}

@@ -34,18 +34,48 @@ Opt-in, not in the paper: ``PassivityGains.sync_rate`` > 0 adds a low-speed phas
 re-synchronisation of σ (see :meth:`PassivityController.law`); it acts only while the
 speed ratio v/√M_r(s) is below ``sync_ratio`` and leaves the law above it unchanged.
 With ``sync_rate`` = 0 (the dataclass default) the law is exactly the paper's.
+
+Default gains (:func:`default_gains`) are set by four rates and an inertia floor, the same
+on every robot, made absolute with the robot's home-pose joint inertias and the mean M_r of
+the path in use (M̄_r, the "mass" of the path-parameter dynamics M_r(s) s̈ = …):
+
+* K_j = min(ω² · max(M_jj(q_home), m_floor), (α/dt)² M_jj)   spring of φ (N·m/rad)
+* κ = ω_s² · M̄_r,  R = ρ · M̄_r,  k_pump = λ / M̄_r ("metric" pump)
+
+with the rates of the robot profile's ``controller_gains["passivity"]`` (two-link and iiwa:
+ω = 20 rad/s, ω_s = 20 rad/s, ρ = 10 1/s, λ = 2 1/s, m_floor = 0.1 kg·m²; the iiwa adds
+γ = 0.5, r̄ = 0.5). The cap (α = 0.2 rad per control sample, :func:`agents.gains.cap_stiffness`)
+keeps a floored light wrist from outrunning the control rate: it never binds at 1 kHz on
+the shipped robots' defaults and softens the iiwa's joint 7 at 500 Hz. The study that
+chose the rates is ``docs/passivity_gain_study.md``.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from agents.base import FloatArray
-from ptrack_gym.paths import PathTables
-from ptrack_gym.robots.model import RobotModel
+from agents.base import ControlContext, FeatureBlock, FloatArray
+from agents.gains import cap_stiffness, rates
+from agents.passivity_tables import PassivityTables, passivity_tables
+from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
+
+NAME = "passivity"
+#: Generic default rates (see the module docstring).
+DEFAULT_RATES: dict[str, Any] = {
+    "omega": 20.0,
+    "omega_s": 20.0,
+    "rho": 10.0,
+    "lam": 2.0,
+    "pump": "metric",
+    "m_floor": 0.1,
+    "sync_rate": 0.0,
+    "sync_ratio": 0.5,
+}
 
 _PUMPS = ("metric", "paper")
 _STARTS = ("nearest", "reference")
@@ -103,6 +133,45 @@ class PassivityGains:
         if not (np.isfinite(self.sync_ratio) and self.sync_ratio > 0):
             raise ValueError(f"sync_ratio must be positive, got {self.sync_ratio!r}")
 
+    @classmethod
+    def from_rates(
+        cls,
+        inertia_kgm2: FloatArray,
+        mean_m_r_j: float,
+        omega: float,
+        omega_s: float,
+        rho: float,
+        lam: float,
+        pump: str = "metric",
+        m_floor: float = 0.0,
+        sync_rate: float = 0.0,
+        sync_ratio: float = 0.5,
+        dt_s: float | None = None,
+    ) -> PassivityGains:
+        """Absolute gains from rates (the module docstring's formulas): K_j = ω² ·
+        max(M_jj, m_floor), capped by :func:`agents.gains.cap_stiffness` when the control
+        period ``dt_s`` (s) is given; κ = ω_s² M̄_r, R = ρ M̄_r, k_pump = λ / M̄_r.
+
+        Args:
+            inertia_kgm2: the joint inertias that scale K, e.g. diag M(q_home) (kg·m²).
+            mean_m_r_j: M̄_r, the mean of M_r(s) over the path (J).
+        """
+        m = np.asarray(inertia_kgm2, dtype=np.float64)
+        if not (np.isfinite(mean_m_r_j) and mean_m_r_j > 0):
+            raise InvalidConfigError(f"mean_m_r_j must be positive, got {mean_m_r_j!r}")
+        stiffness = omega**2 * np.maximum(m, m_floor)
+        if dt_s is not None:
+            stiffness = cap_stiffness(stiffness, m, dt_s)
+        return cls(
+            K=tuple(float(k) for k in stiffness),
+            kappa=float(omega_s**2 * mean_m_r_j),
+            R=float(rho * mean_m_r_j),
+            k_pump=float(lam / mean_m_r_j),
+            pump=pump,
+            sync_rate=float(sync_rate),
+            sync_ratio=float(sync_ratio),
+        )
+
     def stiffness(self, n: int) -> FloatArray:
         """The diagonal of K as an (n,) array."""
         k = np.atleast_1d(np.asarray(self.K, dtype=np.float64))
@@ -149,7 +218,8 @@ class PassivityController:
 
     Args:
         model: the nominal dynamics model (never the simulated body).
-        tables: the reference tables of the path for that model.
+        tables: the reference tables of the path for that model
+            (:func:`agents.passivity_tables.passivity_tables`).
         gains: the controller gains.
         start: how ``reset`` chooses s₀ — "nearest": the path point nearest q₀
             (default; the controller does not care about time); "reference": s₀ = the
@@ -165,7 +235,7 @@ class PassivityController:
     def __init__(
         self,
         model: RobotModel,
-        tables: PathTables,
+        tables: PassivityTables,
         gains: PassivityGains | None = None,
         start: str = "nearest",
         sd0: float | None = None,
@@ -283,7 +353,7 @@ class PassivityController:
         q = np.asarray(q, dtype=np.float64)
         qd = np.asarray(qd, dtype=np.float64)
         if s0 is None:
-            s0 = self.tables.nearest(q).s if self.start == "nearest" else float(s_ref)
+            s0 = self.tables.projector.nearest(q).s if self.start == "nearest" else float(s_ref)
         if sigma0 is None:
             sigma0 = s0
         if sd0 is None:
@@ -328,3 +398,54 @@ class PassivityController:
                 path_error=out.path_error,
             )
         return d
+
+    def residual_features(self, max_speed_rad_s: float) -> FeatureBlock:
+        """Phase of s (sin, cos), ṡ, σ̇, s̃ = s − σ, path error |q_r(s) − q| and its vector
+        (6 + n entries; bounds ±1, ±10, [0, 10], ±S, [0, 2π], ±2π)."""
+        n, period = self.n, self.tables.period_s
+        two_pi = 2.0 * math.pi
+        names = (
+            "sin_phase_s", "cos_phase_s", "sd", "sigma_dot", "s_tilde_s", "path_error_rad",
+            *[f"path_error_{j}_rad" for j in range(n)],
+        )  # fmt: skip
+        high = np.concatenate([[1.0, 1.0, 10.0, 10.0, period, two_pi], np.full(n, two_pi)])
+        low = -high
+        low[3] = 0.0  # σ̇ ≥ 0
+        low[5] = 0.0  # a distance
+
+        def values(q: FloatArray, qd: FloatArray) -> FloatArray:
+            st = self.state
+            ref = self.tables(st.s)
+            speed2 = max(float(qd @ self.model.mass_matrix(q) @ qd), 0.0)  # q̇ᵀMq̇ (J)
+            err = ref.q - q  # (n,) rad
+            omega = two_pi * st.s / period
+            head = [
+                math.sin(omega),
+                math.cos(omega),
+                st.sd,
+                math.sqrt(speed2 / ref.m_r),
+                st.s - st.sigma,
+                float(np.linalg.norm(err)),
+            ]
+            return np.concatenate([head, err])
+
+        return FeatureBlock(names, low, high, values)
+
+
+def default_gains(ctx: ControlContext, tables: PassivityTables | None = None) -> PassivityGains:
+    """The robot's default gains for the context's path and control rate (module
+    docstring): rates from the profile, inertias from the model, M̄_r from the tables."""
+    r = rates(DEFAULT_RATES, ctx.profile.controller_gains.get(NAME), NAME)
+    tables = tables or passivity_tables(ctx.path, ctx.model)
+    inertia = home_inertia_kgm2(ctx.model, ctx.profile)
+    return PassivityGains.from_rates(inertia, tables.mean_m_r, dt_s=ctx.dt_s, **r)
+
+
+def build(ctx: ControlContext, gains: PassivityGains | None = None) -> PassivityController:
+    """The controller for a context, with its default gains unless ``gains`` is given.
+
+    Raises:
+        InvalidPathError: the path is stationary for the law (M_r below β somewhere).
+    """
+    tables = passivity_tables(ctx.path, ctx.model)
+    return PassivityController(ctx.model, tables, gains or default_gains(ctx, tables))

@@ -9,15 +9,63 @@ for a *fixed* set point. On a moving reference it is not a tracking controller: 
 inertial and Coriolis torques M q̈_r + C q̇_r of the reference are never supplied, so the
 arm lags the reference by roughly e ≈ K_p⁻¹ (M q̈_r + C q̇_r). ``docs/baselines.md`` reports
 the size of that steady error on each robot.
+
+Default gains: K_p = ω² diag(m) (N·m/rad), K_d = 2ζω diag(m) (N·m·s/rad), m = diag M(q_home)
+of the nominal model — the poles of computed torque for a decoupled arm near home — with ω
+the robot profile's ``controller_gains["pd_gravity"]["omega"]`` (rad/s), capped at α / dt
+(:func:`agents.gains.cap_bandwidth`).
 """
 
 from __future__ import annotations
 
-from agents.base import FloatArray
-from agents.gains import PDGravityGains, gain_vector
-from agents.reference_clock import ReferenceClock, error_diagnostics
+from dataclasses import dataclass
+
+import numpy as np
+
+from agents.base import ControlContext, FeatureBlock, FloatArray
+from agents.gains import Gain, cap_bandwidth, check_gain, gain_vector, rates, rounded
+from agents.reference_clock import ReferenceClock, error_diagnostics, time_indexed_features
 from ptrack_gym.paths import ReferencePath
-from ptrack_gym.robots.model import RobotModel
+from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
+
+NAME = "pd_gravity"
+#: Generic default rates: ω (rad/s), ζ.
+DEFAULT_RATES = {"omega": 20.0, "zeta": 1.0}
+
+
+@dataclass(frozen=True)
+class PDGravityGains:
+    """Gains of :class:`PDGravityController`.
+
+    Attributes:
+        kp_nm_rad: K_p (N·m/rad).
+        kd_nms_rad: K_d (N·m·s/rad).
+    """
+
+    kp_nm_rad: Gain
+    kd_nms_rad: Gain
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kp_nm_rad", check_gain(self.kp_nm_rad, "kp_nm_rad"))
+        object.__setattr__(self, "kd_nms_rad", check_gain(self.kd_nms_rad, "kd_nms_rad"))
+
+    @classmethod
+    def from_inertia(
+        cls, inertia_kgm2: FloatArray, omega_rad_s: float, zeta: float = 1.0
+    ) -> PDGravityGains:
+        """K_p = ω² m, K_d = 2ζω m, with m the joint inertias (kg·m²), e.g. diag M(q_home)."""
+        m = np.asarray(inertia_kgm2, dtype=np.float64)
+        return cls(
+            kp_nm_rad=rounded(omega_rad_s**2 * m),
+            kd_nms_rad=rounded(2.0 * zeta * omega_rad_s * m),
+        )
+
+
+def default_gains(ctx: ControlContext) -> PDGravityGains:
+    """The robot's default gains at the context's control rate (module docstring)."""
+    r = rates(DEFAULT_RATES, ctx.profile.controller_gains.get(NAME), NAME)
+    inertia = home_inertia_kgm2(ctx.model, ctx.profile)
+    return PDGravityGains.from_inertia(inertia, cap_bandwidth(r["omega"], ctx.dt_s), r["zeta"])
 
 
 class PDGravityController:
@@ -64,3 +112,12 @@ class PDGravityController:
         ``tracking_error`` |e| (rad) and ``velocity_error`` |ė| (rad/s) of the state
         passed to the last step (against q_r(s − dt))."""
         return dict(self._diag)
+
+    def residual_features(self, max_speed_rad_s: float) -> FeatureBlock:
+        """e, ė against the clock (see :func:`agents.reference_clock.time_indexed_features`)."""
+        return time_indexed_features(self.clock, self.n, max_speed_rad_s)
+
+
+def build(ctx: ControlContext, gains: PDGravityGains | None = None) -> PDGravityController:
+    """The controller for a context, with its default gains unless ``gains`` is given."""
+    return PDGravityController(ctx.model, ctx.path, gains or default_gains(ctx))

@@ -10,14 +10,16 @@ disturbance) — the observation holds the same numbers rounded to float32. With
 ``state_source="observation"`` the adapter reads q, q̇ from the first 2n
 entries of the observation instead (for wrapped or remote envs).
 
-When the controller is reset: on the first call, and whenever SB3 passes
-``episode_start=True`` (after every env reset); ``reset_controller()`` does it by hand.
-The controller is reset with the env's current reference phase ``s_ref = s₀ + t``.
+When the controller is reset: whenever the env has been reset since the controller last
+was (the env counts its resets, ``env.unwrapped.episode``), so ``predict``, ``action``
+and ``torque`` all start an episode from its own start state; also when SB3 passes
+``episode_start=True``; ``reset_controller()`` does it by hand. The controller is reset
+with the env's current reference phase ``s_ref = s₀ + t``.
 
-Diagnostics: after every control step ``last_diagnostics`` holds the controller's
-``diagnostics()`` (for the passivity controller: s, ṡ, σ, s̃, s̃̇, σ̇, E and its terms,
-pump power, dissipation), and with ``record=True`` each step's dict is appended, with the
-torque, to ``records`` (cleared at every controller reset).
+Diagnostics: ``last_diagnostics`` is the controller's ``diagnostics()`` after the last
+control step (for the passivity controller: s, ṡ, σ, s̃, s̃̇, σ̇, E and its terms, pump
+power, dissipation), computed when read; with ``record=True`` each step's dict is
+appended, with the torque, to ``records`` (cleared at every controller reset).
 """
 
 from __future__ import annotations
@@ -61,10 +63,14 @@ class ControllerPolicy:
             raise ValueError(f"controller has {controller.n} joints, env has {self.n}")
         self.torque_limits_nm = np.asarray(self.env.torque_limits_nm, dtype=np.float64)
         self.last_tau_nm = np.zeros(self.n)
-        self.last_diagnostics: dict[str, float] = {}
         self.record = record
         self.records: list[dict[str, Any]] = []
-        self._needs_reset = True
+        self._episode: int | None = None  # the env episode the controller was reset for
+
+    @property
+    def last_diagnostics(self) -> dict[str, float]:
+        """The controller's diagnostics after its last step."""
+        return self.controller.diagnostics()
 
     def _state(self, observation: np.ndarray) -> tuple[FloatArray, FloatArray]:
         if self.state_source == "env":
@@ -77,14 +83,16 @@ class ControllerPolicy:
         q, qd = self._state(observation if observation is not None else np.zeros(2 * self.n))
         self.controller.reset(q, qd, self.env.s0 + self.env.t)
         self.records = []
-        self._needs_reset = False
+        self._episode = self.env.episode
 
     def torque(self, observation: np.ndarray) -> FloatArray:
-        """One control step: τ (N·m) for the env's current state."""
+        """One control step: τ (N·m) for the env's current state (the controller is reset
+        first if the env was reset since)."""
+        if self._episode != self.env.episode:
+            self.reset_controller(observation)
         q, qd = self._state(observation)
         tau = self.controller.step(q, qd, self.env.dt)
         self.last_tau_nm = tau
-        self.last_diagnostics = self.controller.diagnostics()
         if self.record:
             self.records.append({"t_s": self.env.t, "tau_nm": tau, **self.last_diagnostics})
         return tau
@@ -106,9 +114,7 @@ class ControllerPolicy:
         batched = obs.ndim == 2
         if batched and obs.shape[0] != 1:
             raise ValueError("ControllerPolicy drives one env: batch size must be 1")
-        if self._needs_reset or (
-            episode_start is not None and bool(np.asarray(episode_start).any())
-        ):
+        if episode_start is not None and bool(np.asarray(episode_start).any()):
             self.reset_controller(obs.reshape(-1))
         action = self.action(obs.reshape(-1))
         return (action[None, :] if batched else action), state

@@ -12,7 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from agents.base import FloatArray
+from agents.base import FeatureBlock, FloatArray
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.paths import ReferencePath
 from ptrack_gym.robots.model import RobotModel
@@ -69,3 +69,26 @@ def error_diagnostics(s: float, err: ReferenceErrors) -> dict[str, float]:
         "tracking_error": float(np.linalg.norm(err.e)),
         "velocity_error": float(np.linalg.norm(err.ed)),
     }
+
+
+def time_indexed_features(
+    clock: ReferenceClock, n: int, max_speed_rad_s: float, lam: FloatArray | None = None
+) -> FeatureBlock:
+    """The residual features of a time-indexed controller: e = q_r(s) − q (rad, ±2π),
+    ė = q_r'(s) − q̇ (rad/s, ±2 v_max) against the controller's clock s, and with
+    ``lam`` (Slotine–Li's Λ) r = ė + Λ e (rad/s, ±(2 v_max + 2π max Λ))."""
+    two_pi = 2.0 * np.pi
+    names = [*[f"e_{j}_rad" for j in range(n)], *[f"ed_{j}_rad_s" for j in range(n)]]
+    blocks = [np.full(n, two_pi), np.full(n, 2.0 * max_speed_rad_s)]
+    if lam is not None:
+        names += [f"r_{j}_rad_s" for j in range(n)]
+        blocks.append(np.full(n, 2.0 * max_speed_rad_s + two_pi * float(np.max(lam))))
+    high = np.concatenate(blocks)
+
+    def values(q: FloatArray, qd: FloatArray) -> FloatArray:
+        s = 0.0 if clock.s is None else clock.s
+        q_r, qd_r, _ = clock.path.evaluate(s)
+        e, ed = q_r - q, qd_r - qd  # (n,) rad, rad/s
+        return np.concatenate([e, ed] if lam is None else [e, ed, ed + lam * e])
+
+    return FeatureBlock(tuple(names), -high, high, values)

@@ -46,19 +46,20 @@ entries                quantity                                    unit         
 =====================  ==========================================  ===============  ============
 0 : n                  e = q_r(s) − q                              rad              ±2π
 n : 2n                 ė = q_r'(s) − q̇                             rad/s            ±2 v_max
-2n : 3n                last τ_base / τ_max (0 after reset)         —                ±2
-3n : 4n (Slotine–Li)   r = ė + Λ e                                 rad/s            ±r_max
+2n : 3n (Slotine–Li)   r = ė + Λ e                                 rad/s            ±r_max
+last n                 last τ_base / τ_max (0 after reset)         —                ±2
 =====================  ==========================================  ===============  ============
 
-with r_max = 2 v_max + 2π max Λ. Any other :class:`~agents.base.Controller`: n entries,
-the last τ_base / τ_max.
+with r_max = 2 v_max + 2π max Λ. Each controller supplies its block through its
+``residual_features`` method (:class:`~agents.base.HasResidualFeatures`); a controller
+without one gets n entries, the last τ_base / τ_max.
 
 Info (every step): ``tau_base_nm`` τ_base, ``tau_residual_nm`` scale ⊙ clip(a, −1, 1)
 (N·m, before the env's own clipping of the sum to τ_max), ``controller`` the
 controller's ``diagnostics()``; reset's info has ``controller`` too.
 
 :func:`make_residual_env` is the one-call constructor: ``gym.make`` + the default-gain
-controller of :func:`agents.factory.make_controller` + the wrapper.
+controller of :func:`agents.registry.make_controller` + the wrapper.
 """
 
 from __future__ import annotations
@@ -71,141 +72,52 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.envs.registration import EnvSpec
 
-from agents.base import Controller, FloatArray
-from agents.computed_torque import ComputedTorqueController
-from agents.factory import CONTROLLER_NAMES, make_controller
-from agents.passivity import PassivityController
-from agents.pd_gravity import PDGravityController
+from agents.base import Controller, FeatureBlock, FloatArray, HasResidualFeatures
 from agents.policy import torque_to_action
-from agents.slotine_li import SlotineLiController
+from agents.registry import CONTROLLER_NAMES, make_controller
 from ptrack_gym.errors import InvalidActionError, InvalidConfigError
 
 #: Default residual authority: scale = 0.1 · τ_max per joint.
 DEFAULT_SCALE_FRACTION = 0.1
 #: Bound of the "last τ_base / τ_max" features: beyond ±2 only "saturated" matters.
 _BASE_RATIO_BOUND = 2.0
-_TWO_PI = 2.0 * math.pi
 
 
 class ControllerFeatures:
-    """A fixed-size, bounded feature vector of a controller's state (float64 before the
-    wrapper casts it to float32).
+    """The residual observation's controller block: the controller's own
+    :class:`~agents.base.FeatureBlock` (when it offers one, :class:`HasResidualFeatures`)
+    followed by the last τ_base / τ_max (n entries, ±2); float64, clipped to its bounds.
 
     Attributes:
         names: one name per entry.
-        low, high: finite bounds per entry; ``__call__`` clips to them.
+        low, high: finite bounds per entry.
     """
 
-    def __init__(self, names: list[str], low: FloatArray, high: FloatArray) -> None:
-        self.names = tuple(names)
-        self.low = np.asarray(low, dtype=np.float64)
-        self.high = np.asarray(high, dtype=np.float64)
-
-    def raw(self, q: FloatArray, qd: FloatArray, base_ratio: FloatArray) -> FloatArray:
-        """The unclipped features; ``base_ratio`` is the last τ_base / τ_max, shape (n,)."""
-        return base_ratio
+    def __init__(self, controller: Controller, max_speed_rad_s: float) -> None:
+        n = controller.n
+        ratio_names = tuple(f"tau_base_ratio_{j}" for j in range(n))
+        ratio_high = np.full(n, _BASE_RATIO_BOUND)
+        self.block: FeatureBlock | None = (
+            controller.residual_features(max_speed_rad_s)
+            if isinstance(controller, HasResidualFeatures)
+            else None
+        )
+        if self.block is None:
+            self.names, self.low, self.high = ratio_names, -ratio_high, ratio_high
+        else:
+            self.names = (*self.block.names, *ratio_names)
+            self.low = np.concatenate([self.block.low, -ratio_high])
+            self.high = np.concatenate([self.block.high, ratio_high])
 
     def __call__(self, q: FloatArray, qd: FloatArray, base_ratio: FloatArray) -> FloatArray:
-        """Features at measured (q, q̇) (rad, rad/s), clipped to [low, high]."""
-        x = self.raw(q, qd, base_ratio)
+        """Features at measured (q, q̇) (rad, rad/s), clipped to [low, high];
+        ``base_ratio`` is the last τ_base / τ_max, shape (n,)."""
+        x = (
+            base_ratio
+            if self.block is None
+            else np.concatenate([self.block.values(q, qd), base_ratio])
+        )
         return np.minimum(np.maximum(np.nan_to_num(x), self.low), self.high)
-
-
-def _ratio_block(n: int) -> tuple[list[str], FloatArray]:
-    return [f"tau_base_ratio_{j}" for j in range(n)], np.full(n, _BASE_RATIO_BOUND)
-
-
-class PassivityFeatures(ControllerFeatures):
-    """Phase of s, ṡ, σ̇, s̃, path error and its vector, last τ_base / τ_max (6 + 2n)."""
-
-    def __init__(self, controller: PassivityController) -> None:
-        self.controller = controller
-        self.period_s = controller.tables.period_s
-        n = controller.n
-        ratio_names, ratio_high = _ratio_block(n)
-        names = [
-            "sin_phase_s",
-            "cos_phase_s",
-            "sd",
-            "sigma_dot",
-            "s_tilde_s",
-            "path_error_rad",
-            *[f"path_error_{j}_rad" for j in range(n)],
-            *ratio_names,
-        ]
-        high = np.concatenate(
-            [[1.0, 1.0, 10.0, 10.0, self.period_s, _TWO_PI], np.full(n, _TWO_PI), ratio_high]
-        )
-        low = -high
-        low[3] = 0.0  # σ̇ ≥ 0
-        low[5] = 0.0  # a distance
-        super().__init__(names, low, high)
-
-    def raw(self, q: FloatArray, qd: FloatArray, base_ratio: FloatArray) -> FloatArray:
-        """See the module table. σ̇ and the errors are at the current (q, q̇, s)."""
-        ctrl = self.controller
-        st = ctrl.state
-        ref = ctrl.tables(st.s)
-        speed2 = max(float(qd @ ctrl.model.mass_matrix(q) @ qd), 0.0)  # q̇ᵀMq̇ (J)
-        err = ref.q - q  # (n,) rad
-        omega = _TWO_PI * st.s / self.period_s
-        head = [
-            math.sin(omega),
-            math.cos(omega),
-            st.sd,
-            math.sqrt(speed2 / ref.m_r),
-            st.s - st.sigma,
-            float(np.linalg.norm(err)),
-        ]
-        return np.concatenate([head, err, base_ratio])
-
-
-class TimeIndexedFeatures(ControllerFeatures):
-    """e, ė against the controller's clock, last τ_base / τ_max (3n); Slotine–Li adds r."""
-
-    def __init__(
-        self,
-        controller: ComputedTorqueController | PDGravityController | SlotineLiController,
-        max_speed_rad_s: float,
-    ) -> None:
-        self.controller = controller
-        n = controller.n
-        self.lam: FloatArray | None = (
-            controller.lam if isinstance(controller, SlotineLiController) else None
-        )
-        ratio_names, ratio_high = _ratio_block(n)
-        names = [
-            *[f"e_{j}_rad" for j in range(n)],
-            *[f"ed_{j}_rad_s" for j in range(n)],
-            *ratio_names,
-        ]
-        blocks = [np.full(n, _TWO_PI), np.full(n, 2.0 * max_speed_rad_s), ratio_high]
-        if self.lam is not None:
-            names += [f"r_{j}_rad_s" for j in range(n)]
-            r_bound = 2.0 * max_speed_rad_s + _TWO_PI * float(np.max(self.lam))
-            blocks.append(np.full(n, r_bound))
-        high = np.concatenate(blocks)
-        super().__init__(names, -high, high)
-
-    def raw(self, q: FloatArray, qd: FloatArray, base_ratio: FloatArray) -> FloatArray:
-        """See the module table; the clock is the controller's ``diagnostics()["s"]``."""
-        s = self.controller.diagnostics()["s"]
-        q_r, qd_r, _ = self.controller.path.evaluate(s)
-        e, ed = q_r - q, qd_r - qd  # (n,) rad, rad/s
-        parts = [e, ed, base_ratio]
-        if self.lam is not None:
-            parts.append(ed + self.lam * e)
-        return np.concatenate(parts)
-
-
-def controller_features(controller: Controller, max_speed_rad_s: float) -> ControllerFeatures:
-    """The feature set of ``controller`` (see the module docstring's tables)."""
-    if isinstance(controller, PassivityController):
-        return PassivityFeatures(controller)
-    if isinstance(controller, (ComputedTorqueController, PDGravityController, SlotineLiController)):
-        return TimeIndexedFeatures(controller, max_speed_rad_s)
-    names, high = _ratio_block(controller.n)
-    return ControllerFeatures(names, -high, high)
 
 
 class ResidualWrapper(
@@ -216,7 +128,7 @@ class ResidualWrapper(
     Args:
         env: a ptrack_gym env (any wrapper of a ``TrackingEnv``).
         controller: the base controller, built for ``env``'s robot (same n), or the name
-            of a default-gain controller (``agents.factory.CONTROLLER_NAMES``). Given by
+            of a default-gain controller (``agents.registry.CONTROLLER_NAMES``). Given by
             name, the wrapper is re-creatable from ``env.spec`` (``spec.make()``, as
             Gymnasium's checker and ``gym.make(spec)`` do); given as an object, ``spec``
             is None (a controller object cannot be rebuilt from a spec).
@@ -272,7 +184,7 @@ class ResidualWrapper(
         assert isinstance(inner, spaces.Box)
         self.features: ControllerFeatures | None = None
         if include_controller_state:
-            self.features = controller_features(controller, float(u.max_speed))
+            self.features = ControllerFeatures(controller, float(u.max_speed))
             low = np.concatenate([inner.low, self.features.low.astype(np.float32)])
             high = np.concatenate([inner.high, self.features.high.astype(np.float32)])
             self.observation_space = spaces.Box(low, high, dtype=np.float32)
@@ -345,7 +257,7 @@ def make_residual_env(
     **env_kwargs: Any,
 ) -> ResidualWrapper:
     """``gym.make(env_id, **env_kwargs)`` wrapped in a :class:`ResidualWrapper` around
-    the default-gain controller ``base`` (one of ``agents.factory.CONTROLLER_NAMES``),
+    the default-gain controller ``base`` (one of ``agents.registry.CONTROLLER_NAMES``),
     with scale = ``scale_fraction`` · τ_max (N·m).
 
     ``env_kwargs`` go to ``gym.make`` (env arguments such as ``control_hz``,

@@ -32,17 +32,58 @@ polarization
 
 :func:`christoffel_product` uses the second form through inverse dynamics with q̈ = 0,
 where g(q) cancels: two model calls, no finite differences.
+
+Default gains: Λ = ω I (1/s), K_D = ω diag(m) (N·m·s/rad), m = diag M(q_home) — the
+linearised error obeys (s + Λ)(s + M⁻¹K_D) e = 0, a double pole near −ω — with ω the robot
+profile's ``controller_gains["slotine_li"]["omega"]`` (rad/s), capped at α / dt
+(:func:`agents.gains.cap_bandwidth`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from agents.base import FloatArray
-from agents.gains import SlotineLiGains, gain_vector
-from agents.reference_clock import ReferenceClock, error_diagnostics
+from agents.base import ControlContext, FeatureBlock, FloatArray
+from agents.gains import Gain, cap_bandwidth, check_gain, gain_vector, rates, rounded
+from agents.reference_clock import ReferenceClock, error_diagnostics, time_indexed_features
 from ptrack_gym.paths import ReferencePath
-from ptrack_gym.robots.model import RobotModel
+from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
+
+NAME = "slotine_li"
+#: Generic default rates: ω (rad/s).
+DEFAULT_RATES = {"omega": 20.0}
+
+
+@dataclass(frozen=True)
+class SlotineLiGains:
+    """Gains of :class:`SlotineLiController`.
+
+    Attributes:
+        lambda_1_s: Λ (1/s), the sliding-surface slope: r = ė + Λ e.
+        kd_nms_rad: K_D (N·m·s/rad), the damping injected on r.
+    """
+
+    lambda_1_s: Gain
+    kd_nms_rad: Gain
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "lambda_1_s", check_gain(self.lambda_1_s, "lambda_1_s"))
+        object.__setattr__(self, "kd_nms_rad", check_gain(self.kd_nms_rad, "kd_nms_rad"))
+
+    @classmethod
+    def from_inertia(cls, inertia_kgm2: FloatArray, omega_rad_s: float) -> SlotineLiGains:
+        """Λ = ω, K_D = ω m, with m the joint inertias (kg·m²): a double pole near −ω."""
+        m = np.asarray(inertia_kgm2, dtype=np.float64)
+        return cls(lambda_1_s=float(omega_rad_s), kd_nms_rad=rounded(omega_rad_s * m))
+
+
+def default_gains(ctx: ControlContext) -> SlotineLiGains:
+    """The robot's default gains at the context's control rate (module docstring)."""
+    r = rates(DEFAULT_RATES, ctx.profile.controller_gains.get(NAME), NAME)
+    inertia = home_inertia_kgm2(ctx.model, ctx.profile)
+    return SlotineLiGains.from_inertia(inertia, cap_bandwidth(r["omega"], ctx.dt_s))
 
 
 def christoffel_product(
@@ -132,3 +173,13 @@ class SlotineLiController:
         |e| (rad), ``velocity_error`` |ė| (rad/s), ``sliding_error`` |r| (rad/s) and
         ``lyapunov_j`` V (J)."""
         return dict(self._diag)
+
+    def residual_features(self, max_speed_rad_s: float) -> FeatureBlock:
+        """e, ė and r = ė + Λ e against the clock
+        (see :func:`agents.reference_clock.time_indexed_features`)."""
+        return time_indexed_features(self.clock, self.n, max_speed_rad_s, lam=self.lam)
+
+
+def build(ctx: ControlContext, gains: SlotineLiGains | None = None) -> SlotineLiController:
+    """The controller for a context, with its default gains unless ``gains`` is given."""
+    return SlotineLiController(ctx.model, ctx.path, gains or default_gains(ctx))

@@ -9,22 +9,22 @@ All functions are pure: arrays in, numbers out (SI units; s in seconds of path t
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ptrack_gym.paths import PathTables
+from ptrack_gym.paths import PathProjector, ReferencePath
 from ptrack_gym.robots.model import RobotModel
 
 FloatArray = NDArray[np.float64]
 
 
-def path_distances(tables: PathTables, q: FloatArray) -> tuple[FloatArray, FloatArray]:
+def path_distances(projector: PathProjector, q: FloatArray) -> tuple[FloatArray, FloatArray]:
     """For each row of q (T, n): d_k = min_s |q_k − q_r(s)| (rad) and the minimising s_k."""
-    out = [tables.nearest(qk) for qk in np.asarray(q, dtype=np.float64)]
-    return np.array([o.distance for o in out]), np.array([o.s for o in out])
+    return projector.nearest_many(q)
 
 
 def phase_offset(s_star: FloatArray, s_ref: FloatArray, period_s: float) -> FloatArray:
@@ -35,15 +35,17 @@ def phase_offset(s_star: FloatArray, s_ref: FloatArray, period_s: float) -> Floa
 
 
 def speed_ratio(
-    model: RobotModel, tables: PathTables, q: FloatArray, qd: FloatArray, s_star: FloatArray
+    model: RobotModel, path: ReferencePath, q: FloatArray, qd: FloatArray, s_star: FloatArray
 ) -> FloatArray:
-    """σ̇_k = sqrt(q̇ᵀ M(q) q̇ / M_r(s*_k)): the arm's speed relative to the path's nominal
-    speed at the nearest path point — the passivity controller's σ̇, defined for any run.
-    1 means moving at the reference's pace."""
+    """σ̇_k = sqrt(q̇ᵀ M(q) q̇ / M_r(s*_k)), M_r(s) = q_r'(s)ᵀ M(q_r(s)) q_r'(s): the arm's
+    speed relative to the path's nominal speed at the nearest path point — the passivity
+    controller's σ̇, defined for any run. 1 means moving at the reference's pace."""
+    q_r, qd_r, _ = path.evaluate(np.asarray(s_star, dtype=np.float64))
     out = np.empty(len(q))
-    for k, (qk, qdk, sk) in enumerate(zip(q, qd, s_star, strict=True)):
-        speed2 = float(qdk @ model.mass_matrix(qk) @ qdk)
-        out[k] = np.sqrt(max(speed2, 0.0) / tables(float(sk)).m_r)
+    for k in range(len(q)):
+        speed2 = float(qd[k] @ model.mass_matrix(q[k]) @ qd[k])
+        m_r = float(qd_r[k] @ model.mass_matrix(q_r[k]) @ qd_r[k])
+        out[k] = np.sqrt(max(speed2, 0.0) / m_r)
     return out
 
 
@@ -87,12 +89,14 @@ class EpisodeRecord:
     unstable: bool
     impulse_end_s: float | None = None  # end of the first impulse/push, if any
     intended_steps: int | None = None  # the episode's full length, for unstable episodes
+    path_distance: FloatArray | None = None  # (T,) info["path_distance"], if recorded (rad)
+    path_s: FloatArray | None = None  # (T,) info["path_s"], the nearest s, if recorded (s)
 
 
 def episode_metrics(
     record: EpisodeRecord,
     model: RobotModel,
-    tables: PathTables,
+    projector: PathProjector,
     failure_distance_rad: float = 0.5,
     recovery_threshold_rad: float = 1e-2,
     settle_fraction: float = 0.5,
@@ -113,25 +117,34 @@ def episode_metrics(
     An unstable episode ends early and its last row is not a real pose (the env clips it);
     that row is dropped and both error series are padded with ``failure_distance_rad`` up
     to ``intended_steps``, so blowing up never scores better than staying near the path.
+
+    The path distances and nearest s are the record's (the env's info) when it has them,
+    otherwise computed by ``projector``.
     """
     if record.unstable and len(record.q) > 1:
-        record = EpisodeRecord(
-            t_s=record.t_s[:-1], q=record.q[:-1], qd=record.qd[:-1], s_ref=record.s_ref[:-1],
-            tau_nm=record.tau_nm[:-1], torque_limits_nm=record.torque_limits_nm,
-            disturbance_work_j=record.disturbance_work_j, unstable=True,
-            impulse_end_s=record.impulse_end_s, intended_steps=record.intended_steps,
-        )  # fmt: skip
+        record = dataclasses.replace(
+            record,
+            **{
+                name: getattr(record, name)[:-1]
+                for name in ("t_s", "q", "qd", "s_ref", "tau_nm", "path_distance", "path_s")
+                if getattr(record, name) is not None
+            },
+        )
     q, qd = record.q, record.qd
-    dist, s_star = path_distances(tables, q)
-    q_ref = tables.path.evaluate(record.s_ref)[0]
+    if record.path_distance is not None and record.path_s is not None:
+        dist, s_star = np.asarray(record.path_distance), np.asarray(record.path_s)
+    else:
+        dist, s_star = path_distances(projector, q)
+    path = projector.path
+    q_ref = path.evaluate(record.s_ref)[0]
     time_err = np.linalg.norm(q_ref - q, axis=1)
     if record.unstable:
         missing = max((record.intended_steps or len(q)) - len(q), 1)
         pad = np.full(missing, failure_distance_rad)
         dist, time_err = np.concatenate([dist, pad]), np.concatenate([time_err, pad])
     k0 = int(len(q) * (1.0 - settle_fraction))
-    ratio = speed_ratio(model, tables, q[k0:], qd[k0:], s_star[k0:])
-    offset = phase_offset(s_star[k0:], record.s_ref[k0:], tables.period_s)
+    ratio = speed_ratio(model, path, q[k0:], qd[k0:], s_star[k0:])
+    offset = phase_offset(s_star[k0:], record.s_ref[k0:], path.period_s)
     frac = np.abs(record.tau_nm) / record.torque_limits_nm
     dq = np.diff(q, axis=0)
     work = float(np.sum(record.tau_nm[1:] * dq)) if len(q) > 1 else 0.0

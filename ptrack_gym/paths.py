@@ -1,4 +1,4 @@
-"""Periodic reference paths q_r(s) and the tables the passivity controller needs.
+"""Periodic reference paths q_r(s), their families, limit checks and a path projector.
 
 The path parameter ``s`` is measured in seconds: a controller that tracks the path at
 nominal speed has ṡ = 1, and the path repeats with period ``period_s``.
@@ -10,16 +10,10 @@ Paths (each implements :class:`ReferencePath`):
 * :class:`SplinePath` — a periodic cubic spline through samples, e.g.
   :func:`ee_circle_path`, an end-effector circle converted to joints by IK on a grid.
 
-:class:`PathTables` tabulates, for a path and a :class:`~ptrack_gym.robots.model.RobotModel`,
-every quantity of CONTROL_LAW.md from the path and inverse dynamics — no finite
-differences:
-
-.. math::
-
-    M_r = q_r'^T M(q_r) q_r', \\quad \\tau_r = M(q_r) q_r'' + C(q_r, q_r') q_r' + g(q_r),
-    \\quad W_r = -U(q_r) - \\tfrac12 M_r,
-
-    W_r' = -q_r'^T \\tau_r, \\quad M_r' = 2 q_r'^T (\\tau_r - g(q_r)).
+:class:`PathProjector` finds the point of a path nearest a joint vector (the *path
+distance* of the reward and the metrics); it needs the path only, no dynamics model.
+Everything a particular controller needs from a path (the passivity controller's tables
+of M_r, W_r, τ_r) is built by that controller, in ``agents``.
 """
 
 from __future__ import annotations
@@ -32,9 +26,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from ptrack_gym.errors import InvalidPathError
-from ptrack_gym.robots.model import RobotModel
-from ptrack_gym.robots.spec import FloatArray, RobotSpec
-from ptrack_gym.sim import BulletArm, BulletSim
+from ptrack_gym.robots.profile import EECircle, FloatArray, RobotProfile
 
 
 @runtime_checkable
@@ -77,33 +69,38 @@ class MultiSinePath:
             raise InvalidPathError("center must be (n,), amplitudes and phases (K, n)")
         if self.amplitudes.shape[1] != self.n:
             raise InvalidPathError(f"amplitudes must have {self.n} columns")
+        for name, arr in (("center", self.center), ("amplitudes", self.amplitudes)):
+            if not np.all(np.isfinite(arr)):
+                raise InvalidPathError(f"{name} must be finite")
+        if not np.all(np.isfinite(self.phases)):
+            raise InvalidPathError("phases must be finite")
         if not (np.isfinite(period_s) and period_s > 0):
             raise InvalidPathError(f"period_s must be positive, got {period_s!r}")
         self.period_s = float(period_s)
         k = np.arange(1, self.amplitudes.shape[0] + 1, dtype=np.float64)
-        self._omega_k = (2.0 * np.pi / self.period_s) * k[:, None]  # (K, 1)
+        self.omega_k = (2.0 * np.pi / self.period_s) * k  # (K,) rad/s
+        self._omega_k = self.omega_k[:, None]  # (K, 1)
         self._a_w = self.amplitudes * self._omega_k  # (K, n)
         self._a_w2 = self._a_w * self._omega_k  # (K, n)
-        # Scalar hot path: one sine of the stacked arguments [ω_k s + φ; ω_k s + φ + π/2]
-        # gives sin and cos, and one product with the stacked coefficients all three sums.
-        zeros = np.zeros_like(self.amplitudes)
-        self._omega_2k = np.vstack([self._omega_k, self._omega_k])  # (2K, 1)
-        self._phase_2k = np.vstack([self.phases, self.phases + 0.5 * np.pi])  # (2K, n)
-        self._coef = np.stack(
-            [
-                np.vstack([self.amplitudes, zeros]),
-                np.vstack([zeros, self._a_w]),
-                np.vstack([-self._a_w2, zeros]),
-            ]
-        )  # (3, 2K, n)
-        self._offset = np.stack([self.center, np.zeros(self.n), np.zeros(self.n)])  # (3, n)
+
+    @property
+    def cache_key(self) -> tuple[object, ...]:
+        """Equal keys, equal paths (for caches of path-derived tables)."""
+        return (
+            "multisine", self.center.tobytes(), self.amplitudes.tobytes(),
+            self.phases.tobytes(), self.amplitudes.shape, self.period_s,
+        )  # fmt: skip
 
     def evaluate(self, s: float | FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """See :meth:`ReferencePath.evaluate`."""
-        if isinstance(s, float | int) or np.ndim(s) == 0:  # the hot path: one s
-            sin_cos = np.sin(self._omega_2k * float(s) + self._phase_2k)  # (2K, n)
-            out = (self._coef * sin_cos).sum(axis=1) + self._offset
-            return out[0], out[1], out[2]
+        if np.ndim(s) == 0:
+            arg = self._omega_k * float(s) + self.phases  # (K, n)
+            sin, cos = np.sin(arg), np.cos(arg)
+            return (
+                self.center + np.sum(self.amplitudes * sin, axis=0),
+                np.sum(self._a_w * cos, axis=0),
+                -np.sum(self._a_w2 * sin, axis=0),
+            )
         arg = self._omega_k * np.asarray(s, dtype=np.float64)[:, None, None] + self.phases
         sin, cos = np.sin(arg), np.cos(arg)  # (m, K, n)
         return (
@@ -124,15 +121,25 @@ class SplinePath:
         samples = np.asarray(samples_rad, dtype=np.float64)
         if samples.ndim != 2 or samples.shape[0] < 4:
             raise InvalidPathError("samples must have shape (N >= 4, n)")
+        if not np.all(np.isfinite(samples)):
+            raise InvalidPathError("samples must be finite")
         if not (np.isfinite(period_s) and period_s > 0):
             raise InvalidPathError(f"period_s must be positive, got {period_s!r}")
         self.n = samples.shape[1]
         self.period_s = float(period_s)
-        knots = np.linspace(0.0, self.period_s, samples.shape[0] + 1)
+        self.knots = np.linspace(0.0, self.period_s, samples.shape[0] + 1)
         closed = np.vstack([samples, samples[:1]])
-        self._q = CubicSpline(knots, closed, bc_type="periodic", axis=0)
+        self.cache_key = ("spline", samples.tobytes(), samples.shape, self.period_s)
+        """Equal keys, equal paths (for caches of path-derived tables)."""
+        self._q = CubicSpline(self.knots, closed, bc_type="periodic", axis=0)
         self._qd = self._q.derivative(1)
         self._qdd = self._q.derivative(2)
+
+    @property
+    def coefficients(self) -> FloatArray:
+        """Polynomial coefficients (4, N, n) of q_r on each knot interval: highest power
+        first, in the local variable s − knots[i] (scipy's ``PPoly`` layout)."""
+        return self._q.c
 
     def evaluate(self, s: float | FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """See :meth:`ReferencePath.evaluate`."""
@@ -143,83 +150,115 @@ class SplinePath:
 # -- path families per robot -------------------------------------------------------
 
 
-def default_path(spec: RobotSpec, period_s: float | None = None) -> MultiSinePath:
+def default_path(profile: RobotProfile, period_s: float | None = None) -> MultiSinePath:
     """The robot's default reference: a fixed two-harmonic Lissajous curve around home.
 
     Joint j of n moves with amplitude a_j = ``path_amplitude_rad[j]`` and phase πj/n on
     harmonic 1, and a_j/4 with phase πj/n + π/3 on harmonic 2. The spread phases keep
-    q_r' away from zero: min M_r / mean M_r is 0.17 (two-link), 0.07 (iiwa) and 0.16
-    (Panda). The period defaults to 4 s for the two-link arm and 8 s for 7-joint arms.
+    q_r' away from zero. The period defaults to the profile's ``path_period_s``.
     """
-    n = spec.n
-    period = period_s if period_s is not None else (4.0 if n <= 2 else 8.0)
-    amp = np.array(spec.path_amplitude_rad)
+    n = profile.n
+    period = period_s if period_s is not None else profile.path_period_s
+    amp = np.array(profile.path_amplitude_rad)
     j = np.arange(n)
     amplitudes = np.vstack([amp, amp / 4.0])
     phases = np.vstack([np.pi * j / n, np.pi * j / n + np.pi / 3.0])
-    return MultiSinePath(np.array(spec.home_q_rad), amplitudes, phases, period)
+    return MultiSinePath(profile.home(), amplitudes, phases, period)
+
+
+#: A random path is kept only if its speed never falls below this fraction of its mean.
+MIN_SPEED_FRACTION = 0.05
+
+
+def min_speed_fraction(
+    path: ReferencePath,
+    metric: Callable[[FloatArray], FloatArray] | None = None,
+    grid_size: int = 1024,
+) -> float:
+    """min_s v(s)² / mean_s v(s)² over one period, v² = q_r'ᵀ W(q_r) q_r' with the metric
+    W (e.g. a model's mass matrix, which makes v² the path's M_r(s)) or the identity."""
+    s = np.linspace(0.0, path.period_s, grid_size, endpoint=False)
+    q, qd, _ = path.evaluate(s)
+    if metric is None:
+        speed2 = np.einsum("ij,ij->i", qd, qd)
+    else:
+        speed2 = np.array([v @ metric(qk) @ v for qk, v in zip(q, qd, strict=True)])
+    mean = float(np.mean(speed2))
+    return float(np.min(speed2)) / mean if mean > 0 else 0.0
 
 
 def random_multisine(
-    spec: RobotSpec,
+    profile: RobotProfile,
     rng: np.random.Generator,
     period_range_s: tuple[float, float] = (4.0, 8.0),
     harmonics: int = 2,
     amplitude_scale: tuple[float, float] = (0.5, 1.0),
+    metric: Callable[[FloatArray], FloatArray] | None = None,
+    max_draws: int = 1000,
 ) -> MultiSinePath:
-    """A random Lissajous path around the home pose, drawn from ``rng`` only.
+    """A random *admissible* Lissajous path around the home pose, drawn from ``rng`` only.
 
-    Harmonic k's amplitude for joint j is ``path_amplitude_rad[j] · u / k`` with u uniform
-    in ``amplitude_scale``; phases are uniform in [0, 2π); the period is uniform in
-    ``period_range_s``. The total amplitude never exceeds the spec's bound times
-    Σ 1/k, which the robot specs keep inside the joint limits; callers should still
-    validate with :func:`check_joint_limits` and :class:`PathTables`.
+    One draw: harmonic k's amplitude for joint j is ``path_amplitude_rad[j] · u / k`` with u
+    uniform in ``amplitude_scale``; phases are uniform in [0, 2π); the period is uniform in
+    ``period_range_s``. Draws are repeated (from the same stream, so a seed always gives the
+    same path) until one is admissible: it keeps :func:`check_joint_limits`' margin and its
+    speed never falls below :data:`MIN_SPEED_FRACTION` of its mean (:func:`min_speed_fraction`
+    in ``metric``, e.g. the robot's mass matrix, so that M_r(s) is bounded away from 0).
+
+    Raises:
+        InvalidPathError: no admissible path in ``max_draws`` draws.
     """
     if harmonics < 1:
         raise InvalidPathError("harmonics must be >= 1")
     k = np.arange(1, harmonics + 1)[:, None]
-    amp = np.array(spec.path_amplitude_rad) * rng.uniform(
-        *amplitude_scale, size=(harmonics, spec.n)
-    )
-    phases = rng.uniform(0.0, 2.0 * np.pi, size=(harmonics, spec.n))
-    period = float(rng.uniform(*period_range_s))
-    return MultiSinePath(np.array(spec.home_q_rad), amp / k, phases, period)
+    lower, upper = profile.limits()
+    for _ in range(max_draws):
+        amp = np.array(profile.path_amplitude_rad) * rng.uniform(
+            *amplitude_scale, size=(harmonics, profile.n)
+        )
+        phases = rng.uniform(0.0, 2.0 * np.pi, size=(harmonics, profile.n))
+        period = float(rng.uniform(*period_range_s))
+        path = MultiSinePath(profile.home(), amp / k, phases, period)
+        if within_joint_limits(path, lower, upper) and (
+            min_speed_fraction(path, metric) >= MIN_SPEED_FRACTION
+        ):
+            return path
+    raise InvalidPathError(f"no admissible random path for {profile.name} in {max_draws} draws")
 
 
 def ee_circle_path(
-    spec: RobotSpec,
-    center_m: FloatArray,
-    radius_m: float,
-    normal: FloatArray = (0.0, 1.0, 0.0),
-    period_s: float = 6.0,
-    n_samples: int = 256,
+    profile: RobotProfile, circle: EECircle | None = None, n_samples: int = 256
 ) -> SplinePath:
     """An end-effector circle converted to a smooth periodic joint path.
 
-    The circle p(θ) = c + r (cos θ u + sin θ v), with (u, v) orthonormal and normal to
-    ``normal``, is sampled at ``n_samples`` equal angles; each point is solved for the
-    centre of mass of ``spec.ee_link`` by :func:`_position_ik`, warm-started from the
-    previous solution. Two laps are solved and the
-    second is kept, so the loop closes; a gap at the seam above 1e-3 rad, or an IK
-    position error above 1 mm, raises :class:`InvalidPathError`.
+    The circle p(θ) = c + r (cos θ u + sin θ v), with (u, v) orthonormal and normal to the
+    circle's normal (default: the profile's ``circle``), is sampled at ``n_samples`` equal
+    angles; each point is solved for the centre of mass of ``profile.ee_link`` by
+    :meth:`~ptrack_gym.sim.BulletArm.position_ik`, warm-started from the previous
+    solution. Two laps are solved and the second is kept, so the loop closes; a gap at
+    the seam above 1e-3 rad, or an IK position error above 1 mm, raises
+    :class:`InvalidPathError`.
     """
-    center = np.asarray(center_m, dtype=np.float64)
-    nrm = np.asarray(normal, dtype=np.float64)
+    from ptrack_gym.sim import BulletSim  # PyBullet's IK, only for this family
+
+    c = circle or profile.circle
+    center = np.asarray(c.center_m, dtype=np.float64)
+    nrm = np.asarray(c.normal, dtype=np.float64)
     nrm = nrm / np.linalg.norm(nrm)
     u = np.cross(nrm, [0.0, 0.0, 1.0] if abs(nrm[2]) < 0.9 else [1.0, 0.0, 0.0])
     u /= np.linalg.norm(u)
     v = np.cross(nrm, u)
     thetas = np.linspace(0.0, 2.0 * np.pi, n_samples, endpoint=False)
-    targets = center + radius_m * (np.cos(thetas)[:, None] * u + np.sin(thetas)[:, None] * v)
-    home = np.array(spec.home_q_rad)
+    targets = center + c.radius_m * (np.cos(thetas)[:, None] * u + np.sin(thetas)[:, None] * v)
+    home = profile.home()
     with BulletSim() as sim:
-        arm = sim.load_arm(spec.urdf_path, spec.joint_names, spec.torque_limits_nm)
+        arm = sim.load_arm(profile.urdf_path, profile.joint_names, profile.torque_limits_nm)
         q = home.copy()
         laps: list[list[FloatArray]] = [[], []]
         errors: list[float] = []
         for lap in range(2):
             for target in targets:
-                q, err = _position_ik(arm, spec.ee_link, target, q, home)
+                q, err = arm.position_ik(profile.ee_link, target, q, home)
                 laps[lap].append(q)
                 if lap == 1:
                     errors.append(err)
@@ -235,50 +274,31 @@ def ee_circle_path(
         raise InvalidPathError(
             f"IK solutions do not close the loop (laps differ by {seam:.2e} rad)"
         )
-    return SplinePath(samples, period_s)
+    return SplinePath(samples, c.period_s)
 
 
-def _position_ik(
-    arm: BulletArm,
-    link: str,
-    target_m: FloatArray,
-    q0: FloatArray,
-    rest_q: FloatArray,
-    iterations: int = 100,
-    damping: float = 1e-6,
-    null_gain: float = 0.1,
-) -> tuple[FloatArray, float]:
-    """Position IK by damped least squares with a null-space pull towards ``rest_q``.
+#: The path families an env can be asked for by name.
+PATH_FAMILIES: tuple[str, ...] = ("default", "circle", "random")
 
-    Iterates q ← q + J⁺ e + (I − J⁺J) k (q_rest − q), J⁺ = Jᵀ(JJᵀ + λ²I)⁻¹, with J the
-    translational Jacobian of ``link``'s centre of mass (PyBullet's ``calculateJacobian``)
-    and e the position error (m). Returns the solution and its final error (m).
-    """
-    import pybullet as p
 
-    cid, idx, n = arm.sim.client_id, arm.link_index(link), arm.n
-    zeros = [0.0] * n
-    q = np.array(q0, dtype=np.float64)
-    err = np.inf
-    for _ in range(iterations):
-        arm.reset_state(q, np.zeros(n))
-        pos = np.array(
-            p.getLinkState(arm.body_id, idx, computeForwardKinematics=1, physicsClientId=cid)[0]
-        )
-        e = target_m - pos
-        err = float(np.linalg.norm(e))
-        jac = np.array(
-            p.calculateJacobian(
-                arm.body_id, idx, [0.0, 0.0, 0.0], q.tolist(), zeros, zeros, physicsClientId=cid
-            )[0]
-        )  # (3, n)
-        jjt = jac @ jac.T + damping * np.eye(3)
-        pinv = jac.T @ np.linalg.solve(jjt, np.eye(3))  # (n, 3)
-        null = (np.eye(n) - pinv @ jac) @ (null_gain * (rest_q - q))
-        if err < 1e-12:
-            break
-        q = q + pinv @ e + null
-    return q, err
+def make_path(
+    path: str | ReferencePath,
+    profile: RobotProfile,
+    path_seed: int | None = None,
+    metric: Callable[[FloatArray], FloatArray] | None = None,
+) -> ReferencePath:
+    """The path ``path`` names for a robot (a :data:`PATH_FAMILIES` name, or a
+    :class:`ReferencePath`, returned as is); ``path_seed`` seeds ``"random"``, ``metric``
+    is its speed metric (:func:`random_multisine`)."""
+    if not isinstance(path, str):
+        return path
+    if path == "default":
+        return default_path(profile)
+    if path == "random":
+        return random_multisine(profile, np.random.default_rng(path_seed), metric=metric)
+    if path == "circle":
+        return ee_circle_path(profile)
+    raise InvalidPathError(f"path must be one of {PATH_FAMILIES} or a ReferencePath, got {path!r}")
 
 
 def check_joint_limits(
@@ -307,19 +327,16 @@ def check_joint_limits(
         )
 
 
-# -- tables ------------------------------------------------------------------------
+def within_joint_limits(path: ReferencePath, lower_rad: FloatArray, upper_rad: FloatArray) -> bool:
+    """Whether :func:`check_joint_limits` accepts ``path``."""
+    try:
+        check_joint_limits(path, lower_rad, upper_rad)
+    except InvalidPathError:
+        return False
+    return True
 
 
-class PathPoint(NamedTuple):
-    """The reference quantities at one value of s (SI units; see the module docstring)."""
-
-    q: FloatArray  # q_r(s), (n,) rad
-    qd: FloatArray  # q_r'(s), (n,) rad/s
-    tau: FloatArray  # τ_r(s), (n,) N·m
-    m_r: float  # M_r(s), J (kg·m²/s²)
-    m_r_d: float  # M_r'(s), J/s
-    w_r: float  # W_r(s), J
-    w_r_d: float  # W_r'(s), J/s
+# -- nearest point -------------------------------------------------------------------
 
 
 class NearestPoint(NamedTuple):
@@ -329,131 +346,45 @@ class NearestPoint(NamedTuple):
     distance: float  # |q − q_r(s)| (rad)
 
 
-def reference_quantities(path: ReferencePath, model: RobotModel, s: float) -> PathPoint:
-    """The :class:`PathPoint` at ``s`` computed exactly from the path and the model."""
-    q, qd, qdd = path.evaluate(float(s))
-    mass = model.mass_matrix(q)
-    tau = model.inverse_dynamics(q, qd, qdd)
-    grav = model.gravity(q)
-    m_r = float(qd @ mass @ qd)
-    return PathPoint(
-        q=q,
-        qd=qd,
-        tau=tau,
-        m_r=m_r,
-        m_r_d=float(2.0 * qd @ (tau - grav)),
-        w_r=-model.potential(q) - 0.5 * m_r,
-        w_r_d=float(-qd @ tau),
-    )
+class PathProjector:
+    """The point of a path nearest a joint vector: d(q) = min_s |q − q_r(s)| (rad).
 
-
-class PathTables:
-    """Reference tables of a path for a model, on a periodic grid, with interpolation.
-
-    Every column (q_r, q_r', τ_r, M_r, M_r', W_r, W_r') is computed exactly at
-    ``grid_size`` nodes by :func:`reference_quantities` and interpolated between them
-    by one periodic cubic spline (scipy). :meth:`exact` evaluates on line instead.
-
-    Args:
-        path: the reference path.
-        model: the controller's (nominal) dynamics model.
-        grid_size: number of nodes per period.
-        beta_abs_j: absolute floor β₀ (J) of M_r.
-        beta_rel: relative floor: the path is rejected as stationary where
-            M_r(s) < β = max(beta_abs_j, beta_rel · mean M_r).
-
-    Raises:
-        InvalidPathError: a path whose M_r dips below β anywhere on the grid (the message
-            names the worst s), or a model/path dimension mismatch.
+    Model-free: built from q_r and q_r' on ``grid_size`` nodes per period. See
+    :meth:`nearest` for the method and its accuracy.
     """
 
-    def __init__(
-        self,
-        path: ReferencePath,
-        model: RobotModel,
-        grid_size: int = 2048,
-        beta_abs_j: float = 1e-6,
-        beta_rel: float = 1e-2,
-    ) -> None:
-        if path.n != model.n:
-            raise InvalidPathError(f"path has {path.n} joints, model has {model.n}")
-        if grid_size < 16:
-            raise InvalidPathError("grid_size must be >= 16")
+    #: Stride of the coarse stage of the search (grid nodes).
+    STRIDE = 8
+
+    def __init__(self, path: ReferencePath, grid_size: int = 2048) -> None:
+        if grid_size < 4 * self.STRIDE:
+            raise InvalidPathError(f"grid_size must be >= {4 * self.STRIDE}")
         self.path = path
-        self.model = model
-        self.n = path.n
         self.period_s = path.period_s
         self.grid_s = np.linspace(0.0, self.period_s, grid_size, endpoint=False)
-        points = [reference_quantities(path, model, s) for s in self.grid_s]
-        columns = np.array(
-            [
-                np.concatenate([pt.q, pt.qd, pt.tau, [pt.m_r, pt.m_r_d, pt.w_r, pt.w_r_d]])
-                for pt in points
-            ]
-        )  # (N, 3n + 4)
-        m_r = columns[:, 3 * self.n]
-        self.beta_j = max(beta_abs_j, beta_rel * float(np.mean(m_r)))
-        worst = int(np.argmin(m_r))
-        if m_r[worst] < self.beta_j:
-            raise InvalidPathError(
-                f"path is (nearly) stationary: M_r = q_r'ᵀ M q_r' = {m_r[worst]:.3e} J at "
-                f"s = {self.grid_s[worst]:.4f} s, below β = {self.beta_j:.3e} J"
-            )
-        self.grid_q = columns[:, : self.n].copy()  # (N, n)
-        self._init_nearest(columns[:, self.n : 2 * self.n])
-        knots = np.append(self.grid_s, self.period_s)
-        self._spline = CubicSpline(knots, np.vstack([columns, columns[:1]]), bc_type="periodic")
-        self.min_m_r = float(m_r[worst])
-
-    def __call__(self, s: float) -> PathPoint:
-        """Interpolated reference quantities at ``s`` (any real; wrapped to the period)."""
-        return self._point(self._spline(s % self.period_s))
-
-    def pair(self, s1: float, s2: float) -> tuple[PathPoint, PathPoint]:
-        """``(self(s1), self(s2))`` with one spline evaluation (the controller's hot path)."""
-        v = self._spline(np.mod((s1, s2), self.period_s))
-        return self._point(v[0]), self._point(v[1])
-
-    def _point(self, v: FloatArray) -> PathPoint:
-        n = self.n
-        return PathPoint(
-            q=v[:n],
-            qd=v[n : 2 * n],
-            tau=v[2 * n : 3 * n],
-            m_r=float(v[3 * n]),
-            m_r_d=float(v[3 * n + 1]),
-            w_r=float(v[3 * n + 2]),
-            w_r_d=float(v[3 * n + 3]),
-        )
-
-    def exact(self, s: float) -> PathPoint:
-        """Reference quantities at ``s`` computed on line from the path and model."""
-        return reference_quantities(self.path, self.model, s)
-
-    #: Stride of the nearest-point search's coarse stage (grid nodes).
-    _STRIDE = 8
-
-    def _init_nearest(self, grid_qd: FloatArray) -> None:
-        """Tables of :meth:`nearest`: a wrapped copy of the grid (so the fine window is a
-        slice) and, per grid interval j, the cubic Hermite interpolant of q_r through its
-        exact end values and slopes, q_r(s_j + t) ≈ q_j + a t + b t² + c t³ for
-        t ∈ [0, h], as the coefficients (a, b, c) and their six pairwise dot products."""
-        n_grid, stride = len(self.grid_s), self._STRIDE
+        grid_q, grid_qd, _ = path.evaluate(self.grid_s)
+        self.grid_q = np.ascontiguousarray(grid_q)  # (N, n)
+        n_grid, stride = grid_size, self.STRIDE
         h = self.period_s / n_grid
+        # Per grid interval j, the cubic Hermite interpolant of q_r through its exact end
+        # values and slopes: q_r(s_j + t) ≈ q_j + a t + b t² + c t³ for t ∈ [0, h].
         q0, q1 = self.grid_q, np.roll(self.grid_q, -1, axis=0)
         m0, m1 = h * grid_qd, h * np.roll(grid_qd, -1, axis=0)
         delta = q1 - q0
-        a = grid_qd
+        a = np.asarray(grid_qd, dtype=np.float64)
         b = (3.0 * delta - 2.0 * m0 - m1) / h**2
         c = (m0 + m1 - 2.0 * delta) / h**3
+        self.h = h
+        self.grid_wrapped = np.ascontiguousarray(
+            self.grid_q[np.arange(-stride, n_grid + stride) % n_grid]
+        )
+        self.coarse_q = np.ascontiguousarray(self.grid_q[::stride])
+        self.coarse_sq = np.einsum("ij,ij->i", self.coarse_q, self.coarse_q)
+        self.hermite = np.ascontiguousarray(np.stack([a, b, c], axis=1))  # (N, 3, n)
         pairs = ((a, a), (a, b), (a, c), (b, b), (b, c), (c, c))
-        self._h = h
-        self._grid_wrapped = self.grid_q[np.arange(-stride, n_grid + stride) % n_grid]
-        self._coarse_q = np.ascontiguousarray(self.grid_q[::stride])
-        self._coarse_sq = np.einsum("ij,ij->i", self._coarse_q, self._coarse_q)
-        self._hermite = np.ascontiguousarray(np.stack([a, b, c], axis=1))  # (N, 3, n)
-        dots = np.stack([np.einsum("ij,ij->i", x, y) for x, y in pairs], axis=1)
-        self._hermite_dots: list[list[float]] = dots.tolist()  # (N, 6)
+        self.hermite_dots = np.ascontiguousarray(
+            np.stack([np.einsum("ij,ij->i", x, y) for x, y in pairs], axis=1)
+        )  # (N, 6)
 
     def nearest(self, q: FloatArray) -> NearestPoint:
         """The point of the path nearest ``q``: min over s of |q − q_r(s)| (rad).
@@ -469,27 +400,27 @@ class PathTables:
            Three Newton steps on g'(t) = 0 from the quadratic model's root, kept inside
            [0, h], give t*; the result is the smaller of g(t*) and the node's distance².
 
-        Cost: two small array searches, one 3×n product and scalar arithmetic. The coarse
-        stage can only pick the wrong branch where two parts of the path pass within
-        ~8 grid spacings of each other.
+        The coarse stage can only pick the wrong branch where two parts of the path pass
+        within ~8 grid spacings of each other.
         """
-        stride, h = self._STRIDE, self._h
+        q = np.asarray(q, dtype=np.float64)
+        stride, h = self.STRIDE, self.h
         n_grid = len(self.grid_s)
         # |q_i − q|² − |q|² = |q_i|² − 2 q_iᵀq: one product ranks the coarse nodes.
-        i = int(np.argmin(self._coarse_sq - 2.0 * (self._coarse_q @ q))) * stride
-        fine = self._grid_wrapped[i : i + 2 * stride + 1] - q  # nodes i − 8 … i + 8
+        i = int(np.argmin(self.coarse_sq - 2.0 * (self.coarse_q @ q))) * stride
+        fine = self.grid_wrapped[i : i + 2 * stride + 1] - q  # nodes i − 8 … i + 8
         d2 = np.einsum("ij,ij->i", fine, fine)
         k = int(np.argmin(d2))
         j = (i - stride + k) % n_grid
         node_d2 = float(d2[k])
-        if float(fine[k] @ self._hermite[j, 0]) <= 0.0:  # (q − q_j)ᵀq_r'(s_j) ≥ 0: ahead
+        if float(fine[k] @ self.hermite[j, 0]) <= 0.0:  # (q − q_j)ᵀq_r'(s_j) ≥ 0: ahead
             interval, e0, p0, node_t = j, -fine[k], node_d2, 0.0
         else:
             interval = (j - 1) % n_grid
             e0 = q - self.grid_q[interval]
             p0, node_t = float(e0 @ e0), h
-        ea, eb, ec = (self._hermite[interval] @ e0).tolist()
-        aa, ab, ac, bb, bc, cc = self._hermite_dots[interval]
+        ea, eb, ec = (self.hermite[interval] @ e0).tolist()
+        aa, ab, ac, bb, bc, cc = self.hermite_dots[interval].tolist()
         # g(t) = |e0 − a t − b t² − c t³|², expanded.
         p1, p2, p3 = -2.0 * ea, aa - 2.0 * eb, 2.0 * (ab - ec)
         p4, p5, p6 = bb + 2.0 * ac, 2.0 * bc, cc
@@ -507,5 +438,7 @@ class PathTables:
         s = float(self.grid_s[interval]) + best_t
         return NearestPoint(s=s % self.period_s, distance=math.sqrt(max(best_d2, 0.0)))
 
-
-PathFactory = Callable[[RobotSpec, np.random.Generator], ReferencePath]
+    def nearest_many(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """For each row of q (T, n): (d_k, s_k) of :meth:`nearest`."""
+        out = [self.nearest(qk) for qk in np.asarray(q, dtype=np.float64)]
+        return np.array([o.distance for o in out]), np.array([o.s for o in out])

@@ -1,11 +1,14 @@
-"""The one owner of a PyBullet physics client, and a handle on an arm loaded in it.
+"""The one owner of PyBullet: a physics client, an arm loaded in it, IK and rendering.
+
+No other module of the package imports ``pybullet``.
 
 :class:`BulletSim` connects a client (``p.DIRECT`` by default, ``p.GUI`` on request),
-sets a fixed time step and explicit gravity, steps, and disconnects (idempotently).
-:class:`BulletArm` is the joint bookkeeping of one fixed-base arm in that client: it
-reads and resets joint states, applies clipped joint torques and answers PyBullet's
-dynamics queries with validated Python lists (PyBullet crashes on some numpy inputs
-and silently accepts lists of the wrong length).
+sets a fixed time step and explicit gravity, steps, renders, and disconnects
+(idempotently). :class:`BulletArm` is the joint bookkeeping of one fixed-base arm in that
+client: it reads and resets joint states, applies clipped joint torques and external
+forces, solves position IK and answers PyBullet's kinematics and dynamics queries with
+validated Python lists (PyBullet crashes on some numpy inputs and silently accepts lists
+of the wrong length).
 
 Conventions of every arm loaded here:
 
@@ -101,6 +104,36 @@ class BulletSim:
     def step(self) -> None:
         """Advance the simulation by one time step (``timestep_s``)."""
         p.stepSimulation(physicsClientId=self._require_connected())
+
+    def render_rgb(
+        self,
+        target_m: Sequence[float],
+        distance_m: float,
+        width: int = 320,
+        height: int = 240,
+        yaw_deg: float = 0.0,
+        pitch_deg: float = -10.0,
+    ) -> NDArray[np.uint8]:
+        """An RGB image (height, width, 3) of the scene by PyBullet's software renderer
+        (headless), from a camera looking at ``target_m`` from ``distance_m`` (m)."""
+        cid = self._require_connected()
+        view = p.computeViewMatrixFromYawPitchRoll(
+            cameraTargetPosition=list(target_m),
+            distance=distance_m,
+            yaw=yaw_deg,
+            pitch=pitch_deg,
+            roll=0.0,
+            upAxisIndex=2,
+            physicsClientId=cid,
+        )
+        proj = p.computeProjectionMatrixFOV(
+            fov=60.0, aspect=width / height, nearVal=0.05, farVal=10.0, physicsClientId=cid
+        )
+        img = p.getCameraImage(
+            width, height, view, proj, renderer=p.ER_TINY_RENDERER, physicsClientId=cid
+        )
+        rgba = np.reshape(np.asarray(img[2], dtype=np.uint8), (height, width, 4))
+        return rgba[:, :, :3].copy()
 
     def close(self) -> None:
         """Disconnect the client. Safe to call more than once."""
@@ -373,6 +406,55 @@ class BulletArm:
             physicsClientId=self.sim._require_connected(),
         )
         return [s[0][2] for s in states]
+
+    def position_ik(
+        self,
+        link_name: str,
+        target_m: FloatArray,
+        q0: FloatArray,
+        rest_q: FloatArray,
+        iterations: int = 100,
+        damping: float = 1e-6,
+        null_gain: float = 0.1,
+    ) -> tuple[FloatArray, float]:
+        """Position IK of a link's centre of mass by damped least squares with a
+        null-space pull towards ``rest_q``; moves this arm (use a query-only body).
+
+        Iterates q ← q + J⁺ e + (I − J⁺J) k (q_rest − q), J⁺ = Jᵀ(JJᵀ + λ²I)⁻¹, with J the
+        translational Jacobian of the link's centre of mass and e the position error (m),
+        from ``q0``. Returns the solution (rad) and its final position error (m).
+        """
+        cid, idx, n = self.sim._require_connected(), self.link_index(link_name), self.n
+        zeros = [0.0] * n
+        q = np.array(q0, dtype=np.float64)
+        err = np.inf
+        for _ in range(iterations):
+            self.reset_state(q, np.zeros(n))
+            pos = np.array(
+                p.getLinkState(self.body_id, idx, computeForwardKinematics=1, physicsClientId=cid)[
+                    0
+                ]
+            )
+            e = np.asarray(target_m, dtype=np.float64) - pos
+            err = float(np.linalg.norm(e))
+            jac = np.array(
+                p.calculateJacobian(
+                    self.body_id,
+                    idx,
+                    [0.0, 0.0, 0.0],
+                    q.tolist(),
+                    zeros,
+                    zeros,
+                    physicsClientId=cid,
+                )[0]
+            )  # (3, n)
+            jjt = jac @ jac.T + damping * np.eye(3)
+            pinv = jac.T @ np.linalg.solve(jjt, np.eye(3))  # (n, 3)
+            null = (np.eye(n) - pinv @ jac) @ (null_gain * (rest_q - q))
+            if err < 1e-12:
+                break
+            q = q + pinv @ e + null
+        return q, err
 
     def link_pose(self, link_name: str) -> tuple[FloatArray, FloatArray]:
         """World position (m) and quaternion (x, y, z, w) of a link frame, current state."""

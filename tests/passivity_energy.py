@@ -11,6 +11,7 @@ import numpy as np
 
 import ptrack_gym  # noqa: F401  (registers the envs)
 from agents.passivity import PassivityController, PassivityGains
+from agents.passivity_tables import passivity_tables
 
 
 @dataclass(frozen=True)
@@ -36,8 +37,9 @@ def run_passivity_energy(hz: float, k_pump: float, disturbance: Any = None) -> E
         "ptrack_gym/TwoLinkTrack-v0", physics_hz=hz, control_hz=hz, disturbance=disturbance
     ).unwrapped
     gains = PassivityGains(K=20.0, kappa=2.0, R=0.5, k_pump=k_pump)
-    ctrl = PassivityController(env.model, env.tables, gains)
-    ref = env.tables.exact(0.5)
+    tables = passivity_tables(env.path, env.model)
+    ctrl = PassivityController(env.model, tables, gains)
+    ref = tables.exact(0.5)
     env.reset(seed=0, options={"s0": 0.5, "q": ref.q + np.array([0.05, -0.04]), "qd": ref.qd})
     q, qd = env.measured_joint_state()
     ctrl.reset(q, qd, env.s0)

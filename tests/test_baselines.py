@@ -17,35 +17,21 @@ import pytest
 from stable_baselines3.common.evaluation import evaluate_policy
 
 import ptrack_gym  # noqa: F401  (registers the environment ids)
-from agents.base import Controller
-from agents.computed_torque import ComputedTorqueController
-from agents.gains import (
-    HOME_INERTIA_KGM2,
-    ComputedTorqueGains,
-    PDGravityGains,
-    SlotineLiGains,
-    default_computed_torque_gains,
-    default_pd_gravity_gains,
-    default_slotine_li_gains,
-)
-from agents.pd_gravity import PDGravityController
+from agents import computed_torque, pd_gravity, slotine_li
+from agents.base import ControlContext, Controller
+from agents.computed_torque import ComputedTorqueController, ComputedTorqueGains
+from agents.pd_gravity import PDGravityController, PDGravityGains
 from agents.policy import ControllerPolicy
-from agents.slotine_li import SlotineLiController, christoffel_product
+from agents.registry import make_controller
+from agents.slotine_li import SlotineLiController, SlotineLiGains, christoffel_product
 from ptrack_gym.paths import default_path
-from ptrack_gym.robots import TwoLinkAnalyticModel, two_link
+from ptrack_gym.robots import ROBOTS, robot_profile
+from ptrack_gym.robots.two_link import TwoLinkAnalyticModel
 
-ENV_IDS = {
-    "two_link": "ptrack_gym/TwoLinkTrack-v0",
-    "iiwa": "ptrack_gym/IiwaTrack-v0",
-    "panda": "ptrack_gym/PandaTrack-v0",
-}
+ENV_IDS = {name: profile.env_id for name, profile in ROBOTS.items()}
 
-#: Each controller class with its default-gain lookup.
-BASELINES: dict[str, tuple[type, Callable[[str], Any]]] = {
-    "computed_torque": (ComputedTorqueController, default_computed_torque_gains),
-    "pd_gravity": (PDGravityController, default_pd_gravity_gains),
-    "slotine_li": (SlotineLiController, default_slotine_li_gains),
-}
+#: Each baseline's module (class, gains, default_gains, build).
+BASELINES = {"computed_torque": computed_torque, "pd_gravity": pd_gravity, "slotine_li": slotine_li}
 
 #: Settling time (s) claimed for computed torque and Slotine–Li at the default gains:
 #: from rest ≤ 0.1 rad off the path, the time-indexed error stays < 1e-3 rad after it.
@@ -67,9 +53,7 @@ def envs() -> Iterator[dict[str, gym.Env[Any, Any]]]:
 
 def make_baseline(name: str, env: gym.Env[Any, Any]) -> Controller:
     """Controller ``name`` with its default gains, on the env's nominal model and path."""
-    cls, default_gains = BASELINES[name]
-    u = env.unwrapped
-    return cls(u.model, u.path, default_gains(u.robot_spec.name))
+    return make_controller(name, env)
 
 
 class Run:
@@ -295,13 +279,40 @@ def test_runs_a_full_episode_through_sb3_evaluate_policy(
 # -- gains -------------------------------------------------------------------------------
 
 
-def test_home_inertias_of_the_defaults_match_the_models(
+def test_default_gains_are_the_profiles_bandwidth_scaled_by_the_models_home_inertia(
     envs: dict[str, gym.Env[Any, Any]],
 ) -> None:
-    for name, env in envs.items():
-        u = env.unwrapped
-        diag = np.diag(u.model.mass_matrix(np.array(u.robot_spec.home_q_rad)))
-        np.testing.assert_allclose(HOME_INERTIA_KGM2[name], diag, rtol=5e-4)
+    """K_p = ω² (computed torque), K_p = ω² M_jj(q_home), K_d = 2ω M_jj (PD + g),
+    Λ = ω, K_D = ω M_jj (Slotine–Li): inertias computed by the model, never pasted."""
+    for env in envs.values():
+        ctx = ControlContext.from_env(env)
+        omega = {
+            name: ctx.profile.controller_gains.get(name, {}).get("omega", 20.0)
+            for name in BASELINES
+        }
+        m = np.diag(ctx.model.mass_matrix(ctx.profile.home()))
+        ct = computed_torque.default_gains(ctx)
+        assert ct.kp_1_s2 == omega["computed_torque"] ** 2
+        pd = pd_gravity.default_gains(ctx)
+        np.testing.assert_allclose(pd.kp_nm_rad, omega["pd_gravity"] ** 2 * m, rtol=5e-4)
+        np.testing.assert_allclose(pd.kd_nms_rad, 2 * omega["pd_gravity"] * m, rtol=5e-4)
+        sl = slotine_li.default_gains(ctx)
+        assert sl.lambda_1_s == omega["slotine_li"]
+        np.testing.assert_allclose(sl.kd_nms_rad, omega["slotine_li"] * m, rtol=5e-4)
+
+
+def test_default_bandwidth_is_capped_by_the_control_rate() -> None:
+    """ω ≤ α / dt (α = 0.2 rad per sample): at 50 Hz the 20 rad/s default becomes 10."""
+    profile = robot_profile("two_link")
+    from ptrack_gym.robots import PinocchioModel
+
+    model = PinocchioModel(profile)
+    path = default_path(profile)
+    slow = ControlContext(profile, model, path, dt_s=0.02)
+    assert computed_torque.default_gains(slow).kp_1_s2 == pytest.approx(10.0**2)
+    assert slotine_li.default_gains(slow).lambda_1_s == pytest.approx(10.0)
+    fast = ControlContext(profile, model, path, dt_s=1e-3)
+    assert computed_torque.default_gains(fast).kp_1_s2 == pytest.approx(20.0**2)
 
 
 @pytest.mark.parametrize(
@@ -336,17 +347,23 @@ def test_bad_gains_raise_value_error(make_gains: Callable[[Any], Any], bad: Any)
 def test_gains_of_the_wrong_length_raise_value_error(cls: type, gains: Any) -> None:
     model = TwoLinkAnalyticModel()
     with pytest.raises(ValueError, match="one entry per joint"):
-        cls(model, default_path(two_link()), gains)
+        cls(model, default_path(robot_profile("two_link")), gains)
 
 
 def test_errors_of_use() -> None:
+    import dataclasses
+
+    from ptrack_gym.robots import PinocchioModel
+
     model = TwoLinkAnalyticModel()
-    path = default_path(two_link())
-    with pytest.raises(ValueError, match="no default gains"):
-        default_slotine_li_gains("ur5")
+    profile = robot_profile("two_link")
+    path = default_path(profile)
+    typo = dataclasses.replace(profile, controller_gains={"slotine_li": {"omgea": 20.0}})
+    with pytest.raises(ValueError, match="unknown slotine_li gain rate"):
+        slotine_li.default_gains(ControlContext(typo, PinocchioModel(profile), path, 1e-3))
     with pytest.raises(TypeError, match="SlotineLiGains"):
-        SlotineLiController(model, path, default_pd_gravity_gains("two_link"))  # type: ignore[arg-type]
-    controller = ComputedTorqueController(model, path, default_computed_torque_gains("two_link"))
+        SlotineLiController(model, path, PDGravityGains(kp_nm_rad=1.0, kd_nms_rad=1.0))  # type: ignore[arg-type]
+    controller = ComputedTorqueController(model, path, ComputedTorqueGains.from_bandwidth(20.0))
     with pytest.raises(RuntimeError, match="reset"):
         controller.step(np.zeros(2), np.zeros(2), 1e-3)
     controller.reset(np.zeros(2), np.zeros(2), 0.0)
@@ -356,7 +373,7 @@ def test_errors_of_use() -> None:
 
 def test_per_joint_gains_equal_the_broadcast_scalar() -> None:
     model = TwoLinkAnalyticModel()
-    path = default_path(two_link())
+    path = default_path(robot_profile("two_link"))
     q, qd = np.array([-0.5, 1.1]), np.array([0.3, -0.2])
     taus = []
     for gains in (

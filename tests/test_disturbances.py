@@ -17,7 +17,9 @@ from ptrack_gym.disturbances import (
     build_disturbances,
 )
 from ptrack_gym.errors import InvalidConfigError
-from ptrack_gym.robots import TwoLinkAnalyticModel, TwoLinkParams
+from ptrack_gym.robots import robot_profile
+from ptrack_gym.robots.two_link import TwoLinkAnalyticModel, TwoLinkParams
+from ptrack_gym.sim import BulletSim
 
 TWO_LINK = "ptrack_gym/TwoLinkTrack-v0"
 HOLD_Q = np.array([0.3, -0.5])
@@ -121,12 +123,12 @@ class _EquivalentTorque(Disturbance):
 
     name = "equivalent"
 
-    def __init__(self, model, force, onset, duration):
-        self.model, self.force, self.onset, self.duration = model, force, onset, duration
+    def __init__(self, kinematics, force, onset, duration):
+        self.kinematics, self.force, self.onset, self.duration = kinematics, force, onset, duration
 
     def joint_torque(self, t_s, q, qd):
         if self.onset <= t_s < self.onset + self.duration:
-            return self.model.com_jacobian("tip", q).T @ self.force
+            return self.kinematics.com_jacobian("tip", q).T @ self.force
         return None
 
 
@@ -137,12 +139,15 @@ def test_push_acts_as_the_equivalent_joint_torque() -> None:
     env = make(push)
     env.reset(seed=2, options={"q": HOLD_Q, "qd": np.zeros(2)})
     force = env.disturbance_schedule()[0]["force_n"]
-    twin = make([_EquivalentTorque(env.model, force, 0.02, 0.05)])
-    twin.reset(seed=2, options={"q": HOLD_Q, "qd": np.zeros(2)})
-    a = hold_action(env, HOLD_Q)
-    for _ in range(100):
-        _, _, _, _, info = env.step(a)
-        _, _, _, _, info_twin = twin.step(a)
+    with BulletSim() as sim:  # an independent copy of the arm for the Jacobian
+        spec = robot_profile("two_link")
+        kinematics = sim.load_arm(spec.urdf_path, spec.joint_names, spec.torque_limits_nm)
+        twin = make([_EquivalentTorque(kinematics, force, 0.02, 0.05)])
+        twin.reset(seed=2, options={"q": HOLD_Q, "qd": np.zeros(2)})
+        a = hold_action(env, HOLD_Q)
+        for _ in range(100):
+            _, _, _, _, info = env.step(a)
+            _, _, _, _, info_twin = twin.step(a)
     np.testing.assert_allclose(env.joint_state()[0], twin.joint_state()[0], atol=1e-6)
     assert info["disturbance_work_j"] == pytest.approx(info_twin["disturbance_work_j"], rel=1e-3)
     assert abs(info["disturbance_work_j"]) > 1e-3
@@ -244,8 +249,8 @@ def test_action_noise_and_mismatch_act_on_the_plant() -> None:
 
 def test_level_zero_is_no_disturbance_and_presets_build() -> None:
     for name in PRESETS:
-        assert build_disturbances((name, 0.0), "iiwa") == []
-        built = build_disturbances((name, 1.0), "iiwa")
+        assert build_disturbances((name, 0.0), robot_profile("iiwa")) == []
+        built = build_disturbances((name, 1.0), robot_profile("iiwa"))
         assert (name == "none") == (built == [])
     a, b = make(("impulse", 0.0)), make(None)
     a.reset(seed=1)
@@ -285,7 +290,7 @@ def test_energy_budget_sets_the_impulse_size() -> None:
 )
 def test_bad_specs_raise_clear_errors(spec, match) -> None:
     with pytest.raises(InvalidConfigError, match=match):
-        build_disturbances(spec, "two_link")
+        build_disturbances(spec, robot_profile("two_link"))
     with pytest.raises(ValueError, match=match):
         gym.make(TWO_LINK, disturbance=spec)
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 import copy
 import gc
 import pickle
-import warnings
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -18,14 +17,13 @@ import gymnasium as gym
 import numpy as np
 import pybullet as p
 import pytest
-from gymnasium.utils.env_checker import check_env as gymnasium_check_env
-from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import ptrack_gym
+from ptrack_gym.envs.config import EnvConfig
 from ptrack_gym.envs.tracking import TrackingEnv
 from ptrack_gym.errors import InvalidActionError, InvalidConfigError, SimulationClosedError
-from ptrack_gym.paths import PathTables, ReferencePath
-from ptrack_gym.robots import BulletModel, RobotModel
+from ptrack_gym.paths import PathProjector, ReferencePath
+from ptrack_gym.robots import BulletModel, PinocchioModel, RobotModel
 
 TWO_LINK = "ptrack_gym/TwoLinkTrack-v0"
 IIWA = "ptrack_gym/IiwaTrack-v0"
@@ -106,28 +104,12 @@ def _connected_clients() -> set[int]:
     return {cid for cid in range(1024) if p.isConnected(physicsClientId=cid)}
 
 
-def _client_ids(env: gym.Env[Any, Any]) -> tuple[int, int]:
-    """The plant's and the nominal model's PyBullet client ids."""
-    unwrapped = env.unwrapped
-    return unwrapped.sim.client_id, unwrapped.model._sim.client_id
+def _client_ids(env: gym.Env[Any, Any]) -> tuple[int]:
+    """The env's PyBullet client ids: the plant's only (the nominal model is Pinocchio's)."""
+    return (env.unwrapped.sim.client_id,)
 
 
-# -- 1. API checkers --------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("env_id", ptrack_gym.ENV_IDS)
-def test_gymnasium_and_sb3_checkers_pass_without_warnings(make_env: MakeEnv, env_id: str) -> None:
-    """Both checkers pass on the bare env and emit no warning at all.
-
-    Gymnasium's checker also renders (``rgb_array``, through ``env.spec``) and closes a
-    fresh env twice, so those paths are covered too.
-    """
-    env = make_env(env_id)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        gymnasium_check_env(env.unwrapped)
-        sb3_check_env(env.unwrapped)
-    assert [f"{w.category.__name__}: {w.message}" for w in caught] == []
+# (1. API checkers: test_robot_battery.py, for every registered robot)
 
 
 # -- 2. determinism ---------------------------------------------------------------------
@@ -245,8 +227,6 @@ def test_close_twice_is_fine_and_a_closed_env_refuses_to_run() -> None:
             env.step(np.zeros(2))
         with pytest.raises(SimulationClosedError):
             env.reset(seed=0)
-        with pytest.raises(SimulationClosedError):
-            env.model.mass_matrix(np.zeros(2))
 
 
 def test_closed_bullet_sim_raises_simulation_closed_error() -> None:
@@ -271,10 +251,11 @@ def test_render_after_close_raises_simulation_closed_error(make_env: MakeEnv) ->
 # -- 5. memory and PyBullet clients -----------------------------------------------------
 
 #: RSS growth allowed over 200 make/reset/step/close cycles (kB). Measured run to run on
-#: this machine: between -0.8 MB and +1.7 MB (allocator noise). One live env holds two
-#: PyBullet clients of ~25-28 MB each plus ~1 MB of Python objects (the PathTables
-#: spline alone is 0.65 MB), so leaking either for each of 200 envs would add ≥ 200 MB;
-#: 16 MB catches any leak of ≥ 80 kB per env while staying 10x above the noise.
+#: this machine (with two clients per env, before the nominal model became Pinocchio's):
+#: between -0.8 MB and +1.7 MB (allocator noise). One live env holds a PyBullet client of
+#: ~25-28 MB plus its Pinocchio model and path projector, so leaking either for each of
+#: 200 envs would add ≥ 200 MB; 16 MB catches any leak of ≥ 80 kB per env while staying
+#: 10x above the noise.
 _RSS_TOLERANCE_KB = 16 * 1024
 
 
@@ -385,12 +366,13 @@ def test_unknown_make_kwarg_raises_type_error() -> None:
     ],
 )
 def test_bad_rates_raise_value_error(physics_hz: float, control_hz: float) -> None:
-    """control_hz must divide physics_hz, both positive and finite: else InvalidConfigError.
+    """control_hz must divide physics_hz, both positive and finite: else InvalidConfigError
+    naming the rate at fault.
 
     Regressions: control_hz=inf once passed (1000/inf = 0 rounds to itself, giving 0
     sub-steps and dt = 0), and an infinite ratio once raised OverflowError from round().
     """
-    with pytest.raises(ValueError, match="multiple of control_hz") as excinfo:
+    with pytest.raises(ValueError, match=r"(physics|control)_hz") as excinfo:
         gym.make(TWO_LINK, physics_hz=physics_hz, control_hz=control_hz)
     assert isinstance(excinfo.value, InvalidConfigError)
 
@@ -426,7 +408,7 @@ def _assert_unstable_step(env: gym.Env[Any, Any], result: StepResult) -> None:
     assert np.all(np.isfinite(obs))
     assert env.observation_space.contains(obs)
     assert np.isfinite(reward)
-    assert reward == -env.unwrapped.unstable_penalty
+    assert reward == -env.unwrapped.config.unstable_penalty
 
 
 def test_speed_above_limit_terminates_as_unstable(
@@ -438,7 +420,7 @@ def test_speed_above_limit_terminates_as_unstable(
     millisecond cannot slow it below v_max.
     """
     env = make_env(TWO_LINK)
-    v_max = env.unwrapped.robot_spec.max_joint_speed_rad_s
+    v_max = env.unwrapped.robot_profile.max_joint_speed_rad_s
     obs, _ = env.reset(seed=0, options={"qd": np.array([1.5 * v_max, 0.0])})
     assert env.observation_space.contains(obs)  # the reset observation is clipped too
     result = env.step(np.zeros(2, dtype=np.float32))
@@ -525,7 +507,7 @@ def test_rgb_array_render_is_a_headless_image_of_the_arm(
     assert frame.shape == (240, 320, 3)
     assert frame.dtype == np.uint8
     assert not np.all(frame == frame[0, 0])
-    home = np.array(env.unwrapped.robot_spec.home_q_rad)
+    home = np.array(env.unwrapped.robot_profile.home_q_rad)
     env.reset(seed=0, options={"q": home + 0.5, "qd": np.zeros_like(home)})
     assert not np.array_equal(env.render(), frame)
 
@@ -604,17 +586,16 @@ def test_q_and_qd_options_set_the_start_state(
 
 
 @pytest.mark.parametrize("env_id", ptrack_gym.ENV_IDS)
-def test_unwrapped_exposes_model_path_dt_tables(make_env: MakeEnv, env_id: str) -> None:
-    """``env.unwrapped`` has the nominal model, the path, dt and the path's tables."""
+def test_unwrapped_exposes_model_path_dt_projector(make_env: MakeEnv, env_id: str) -> None:
+    """``env.unwrapped`` has the nominal model, the path, dt and the path's projector."""
     env = make_env(env_id)
     unwrapped = env.unwrapped
     assert isinstance(unwrapped, TrackingEnv)
-    assert isinstance(unwrapped.model, BulletModel)
+    assert isinstance(unwrapped.model, PinocchioModel)
     assert isinstance(unwrapped.model, RobotModel)
     assert isinstance(unwrapped.path, ReferencePath)
-    assert isinstance(unwrapped.tables, PathTables)
-    assert unwrapped.tables.path is unwrapped.path
-    assert unwrapped.tables.model is unwrapped.model
+    assert isinstance(unwrapped.projector, PathProjector)
+    assert unwrapped.projector.path is unwrapped.path
     assert unwrapped.dt == 1e-3
     assert unwrapped.model.n == unwrapped.path.n == unwrapped.n
 
@@ -626,19 +607,122 @@ def test_unwrapped_exposes_model_path_dt_tables(make_env: MakeEnv, env_id: str) 
 def test_info_energy_and_errors_are_the_nominal_models_at_the_true_state(
     make_env: MakeEnv, env_id: str, scale: float
 ) -> None:
-    """``energy_j`` = ½q̇ᵀM(q)q̇ + U(q) of the nominal model, ``tracking_error`` and
-    ``path_distance`` at the true state, every step, also with the plant's masses changed
-    (the env reads link heights from the simulated arm: a changed mass must not leak)."""
-    env = make_env(env_id, disturbance=("mismatch", 1.0))
+    """With ``info_energy=True``, ``energy_j`` = ½q̇ᵀM(q)q̇ + U(q) of the nominal model (checked
+    against an independent PyBullet model), ``tracking_error`` and ``path_distance`` at the
+    true state, every step, also with the plant's masses changed (which must not leak)."""
+    env = make_env(env_id, disturbance=("mismatch", 1.0), info_energy=True)
     u = env.unwrapped
+    reference = BulletModel(u.robot_profile)
     env.reset(seed=4)
     for action in _random_actions(u.n, 400, seed=9, scale=scale):
         _, _, terminated, _, info = env.step(action)
         assert not terminated
         q, qd = u.joint_state()
-        expected = u.model.kinetic_energy(q, qd) + u.model.potential(q)
+        expected = reference.kinetic_energy(q, qd) + reference.potential(q)
         assert info["energy_j"] == pytest.approx(expected, rel=1e-12, abs=1e-12)
         q_ref = u.path.evaluate(info["s_ref"])[0]
         assert info["tracking_error"] == pytest.approx(np.linalg.norm(q_ref - q), abs=1e-14)
-        assert info["path_distance"] == pytest.approx(u.tables.nearest(q).distance, abs=1e-15)
-    assert np.max(np.abs(u.arm.link_masses() - u.model.link_masses_kg)) > 1e-3  # perturbed
+        assert info["path_distance"] == pytest.approx(u.projector.nearest(q).distance, abs=1e-15)
+    assert np.max(np.abs(u.arm.link_masses() - reference.link_masses_kg)) > 1e-3  # perturbed
+    reference.close()
+
+
+def test_energy_is_in_the_info_only_when_asked_for(make_env: MakeEnv) -> None:
+    env = make_env(TWO_LINK)
+    _, info = env.reset(seed=0)
+    assert "energy_j" not in info
+    assert "energy_j" not in env.step(np.zeros(2, dtype=np.float32))[4]
+    env = make_env(TWO_LINK, info_energy=True)
+    _, info = env.reset(seed=0)
+    assert np.isfinite(info["energy_j"])
+
+
+# -- 12. bad arguments found by trying the env as a new user would ----------------------
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"reward_weights": (10.0, float("nan"), 0.01)}, "reward_weights"),
+        ({"reward_weights": (10.0, 1.0, float("inf"))}, "reward_weights"),
+        ({"reward_weights": (10.0, -1.0, 0.01)}, "reward_weights"),
+        ({"reward_weights": (10.0, 1.0)}, "reward_weights"),
+        ({"reward_weights": "abc"}, "reward_weights"),
+        ({"unstable_penalty": float("nan")}, "unstable_penalty"),
+        ({"unstable_penalty": float("inf")}, "unstable_penalty"),
+        ({"start_offset_rad": float("inf")}, "start_offset_rad"),
+        ({"start_offset_rad": -0.1}, "start_offset_rad"),
+        ({"start_noise_rad": float("nan")}, "start_noise_rad"),
+        ({"control_hz": True}, "control_hz"),
+        ({"physics_hz": "1000"}, "physics_hz"),
+        ({"horizon_s": 0.0}, "horizon_s"),
+        ({"path": "spiral"}, "path"),
+        ({"path_seed": 1.5}, "path_seed"),
+        ({"start": "flying"}, "start"),
+        ({"info_energy": 1}, "info_energy"),
+        ({"render_mode": "human"}, "render_mode"),
+        ({"robot": "ur5"}, "unknown robot"),
+    ],
+)
+def test_bad_arguments_raise_at_construction(kwargs: dict[str, Any], match: str) -> None:
+    """Each bad value is refused by the constructor with a message naming the argument,
+    before any PyBullet client is connected."""
+    before = _connected_clients()
+    with pytest.raises(InvalidConfigError, match=match):
+        TrackingEnv(**kwargs)
+    with pytest.raises(ValueError, match=match):
+        EnvConfig(**kwargs)
+    assert _connected_clients() == before
+
+
+def test_env_signature_defaults_are_the_validators() -> None:
+    """The env's keyword defaults and :class:`EnvConfig`'s are the same (one contract)."""
+    import inspect
+
+    env_defaults = {
+        k: v.default for k, v in inspect.signature(TrackingEnv.__init__).parameters.items()
+        if k != "self"
+    }  # fmt: skip
+    assert env_defaults == EnvConfig().kwargs()
+
+
+@pytest.mark.parametrize(
+    "action",
+    [
+        np.array([0.1 + 0.2j, 0.0]),
+        np.array(["0.1", "0.2"]),
+        np.array([True, False]),
+        np.array([None, None], dtype=object),
+    ],
+    ids=["complex", "string", "bool", "object"],
+)
+def test_non_real_actions_are_refused_not_cast(make_env: MakeEnv, action: np.ndarray) -> None:
+    env = make_env(TWO_LINK)
+    env.reset(seed=0)
+    before = env.unwrapped.joint_state()
+    with pytest.raises(InvalidActionError, match="real numbers"):
+        env.unwrapped.step(action)
+    assert np.array_equal(env.unwrapped.joint_state()[0], before[0])
+
+
+def test_integer_actions_are_accepted_as_numbers(make_env: MakeEnv) -> None:
+    env, twin = make_env(TWO_LINK), make_env(TWO_LINK)
+    env.reset(seed=0)
+    twin.reset(seed=0)
+    _assert_results_equal(
+        [env.unwrapped.step(np.array([1, 0]))], [twin.unwrapped.step(np.array([1.0, 0.0]))]
+    )
+
+
+@pytest.mark.parametrize("disturbance", [None, "impulse"])
+def test_stepping_the_unwrapped_env_before_reset_raises_reset_needed(
+    disturbance: str | None,
+) -> None:
+    env = TrackingEnv(robot="two_link", disturbance=disturbance)
+    with pytest.raises(gym.error.ResetNeeded, match="reset"):
+        env.step(np.zeros(2))
+    with pytest.raises(gym.error.ResetNeeded):
+        env.disturbance_schedule()
+    env.reset(seed=0)
+    env.step(np.zeros(2))
+    env.close()

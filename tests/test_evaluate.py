@@ -11,11 +11,12 @@ import pandas as pd
 import pytest
 
 import ptrack_gym  # noqa: F401
-from agents.factory import make_controller
 from agents.policy import ControllerPolicy
+from agents.registry import make_controller
 from ptrack_gym.errors import InvalidConfigError
-from train.evaluate import load_config, main, run_sweep
+from train.evaluate import load_config, main
 from train.results import COLUMNS, CorruptResultsError, read_episodes
+from train.sweep import run_sweep
 
 TINY = [
     "env_id=ptrack_gym/TwoLinkTrack-v0",
@@ -246,7 +247,7 @@ def test_resume_refuses_a_different_sweep(full_run, tmp_path) -> None:
 def test_every_preset_runs_in_an_episode() -> None:
     """Each preset's schedule has what the metrics read (a push has a duration, ...)."""
     from ptrack_gym.disturbances import PRESETS
-    from train.eval_episode import EpisodeSettings, Task, run_episode
+    from train.episode import EpisodeSettings, Task, run_episode
 
     settings = EpisodeSettings("ptrack_gym/TwoLinkTrack-v0", 0.05, 1000.0, "on_path", 0.5, 0.01)
     for preset in PRESETS:

@@ -14,15 +14,16 @@ from ptrack_gym.metrics import (
     rms,
     speed_ratio,
 )
-from ptrack_gym.paths import PathTables, default_path
-from ptrack_gym.robots import TwoLinkAnalyticModel, two_link
+from ptrack_gym.paths import PathProjector, default_path
+from ptrack_gym.robots import robot_profile
+from ptrack_gym.robots.two_link import TwoLinkAnalyticModel
 
 
 @pytest.fixture(scope="module")
 def setup():
     model = TwoLinkAnalyticModel()
-    tables = PathTables(default_path(two_link()), model)
-    return model, tables
+    projector = PathProjector(default_path(robot_profile("two_link")))
+    return model, projector
 
 
 def shifted_record(tables, lag_s: float, speed: float = 1.0, n_steps: int = 400, dt: float = 0.01):
@@ -58,7 +59,7 @@ def test_speed_ratio_of_a_slow_arm(setup) -> None:
     model, tables = setup
     rec = shifted_record(tables, lag_s=0.0, speed=0.5)
     _, s_star = path_distances(tables, rec.q)
-    ratio = speed_ratio(model, tables, rec.q, rec.qd, s_star)
+    ratio = speed_ratio(model, tables.path, rec.q, rec.qd, s_star)
     np.testing.assert_allclose(ratio, 0.5, atol=1e-8)
 
 

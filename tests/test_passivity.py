@@ -13,59 +13,11 @@ from stable_baselines3.common.monitor import Monitor
 
 import ptrack_gym  # noqa: F401  (registers the envs)
 from agents.passivity import PassivityController, PassivityGains
+from agents.passivity_tables import PassivityTables, passivity_tables
 from agents.policy import ControllerPolicy
-from ptrack_gym.paths import PathTables, default_path
-from ptrack_gym.robots import ROBOTS, BulletModel, TwoLinkAnalyticModel, make_robot, two_link
-
-
-@pytest.fixture(scope="module", params=sorted(ROBOTS))
-def robot_controller(request):
-    spec = make_robot(request.param)
-    model = BulletModel(spec)
-    tables = PathTables(default_path(spec), model)
-    yield spec, model, tables
-    model.close()
-
-
-def test_lemma_5_1_on_the_reference(robot_controller) -> None:
-    """At q = q_r(s), q̇ = q_r'(s), ṡ = 1, σ = s: τ = τ_r(s), s̈ = 0, σ̇ = 1, E = 0,
-    H + W_r(σ) = 0, H_r = 0 — relative tolerance 1e-8, with the interpolated tables."""
-    _spec, model, tables = robot_controller
-    ctrl = PassivityController(model, tables, PassivityGains(K=50.0, kappa=3.0, R=0.7, k_pump=5.0))
-    for s in np.linspace(0.0, tables.period_s, 25, endpoint=False) + 0.0371:
-        ref = tables.exact(s)
-        out = ctrl.law(ref.q, ref.qd, s, 1.0, s)
-        scale_tau = np.abs(ref.tau).max()
-        energy_scale = abs(model.potential(ref.q)) + ref.m_r  # |H| + |W_r| order
-        np.testing.assert_allclose(out.tau, ref.tau, atol=1e-8 * scale_tau)
-        assert abs(out.s_dd) <= 1e-8 * max(abs(ref.m_r_d) / ref.m_r, 1.0)
-        assert out.sigma_dot == pytest.approx(1.0, abs=1e-8)
-        assert abs(out.energy) <= 1e-8 * energy_scale
-        assert abs(out.h_plus_w) <= 1e-8 * energy_scale
-        assert out.h_r == 0.0
-        assert out.phi == pytest.approx(0.0, abs=1e-16 + 1e-8 * energy_scale)
-        np.testing.assert_allclose(out.pump_torque, 0.0, atol=1e-8 * scale_tau)
-
-
-def test_work_free_reference_torque_and_finite_at_rest(robot_controller) -> None:
-    """τ_r⁰ᵀ q̇ = 0 at random states; no NaN at q̇ = 0 or at tiny speeds."""
-    spec, model, tables = robot_controller
-    ctrl = PassivityController(model, tables, PassivityGains())
-    rng = np.random.default_rng(0)
-    for _ in range(20):
-        q = tables(rng.uniform(0, tables.period_s)).q + rng.normal(0, 0.1, spec.n)
-        qd = rng.normal(0, 1.0, spec.n)
-        s, sd, sigma = rng.uniform(0, 8), rng.uniform(-0.5, 2.0), rng.uniform(0, 8)
-        out = ctrl.law(q, qd, s, sd, sigma)
-        assert abs(out.tau_r0 @ qd) <= 1e-10 * np.linalg.norm(out.tau_r0) * np.linalg.norm(qd)
-        for speed in (0.0, 1e-300, 1e-12, 1e-7, 1e-6, 1e-5):
-            direction = rng.normal(size=spec.n)
-            out = ctrl.law(q, speed * direction / np.linalg.norm(direction), s, sd, sigma)
-            assert all(np.all(np.isfinite(np.asarray(v, dtype=float))) for v in out)
-        # Exactly at rest the speed-direction term is dropped (speed_eps), σ̇ = 0.
-        out = ctrl.law(q, np.zeros(spec.n), s, sd, sigma)
-        assert out.sigma_dot == 0.0
-        np.testing.assert_allclose(out.tau_sync, -ctrl.k_diag * (q - tables(s).q), atol=1e-12)
+from ptrack_gym.paths import default_path
+from ptrack_gym.robots import PinocchioModel, robot_profile
+from ptrack_gym.robots.two_link import TwoLinkAnalyticModel
 
 
 def _closed_loop(model, ctrl, tau_d):
@@ -101,7 +53,7 @@ def test_theorem_4_1_energy_balance_exact_model(k_pump, tau_d, sync_rate) -> Non
     ``sync_power`` when it is on); with k = 0, τ_d = 0 and no re-synchronisation, E is
     non-increasing."""
     model = TwoLinkAnalyticModel()
-    tables = PathTables(default_path(two_link()), model)
+    tables = PassivityTables(default_path(robot_profile("two_link")), model)
     gains = PassivityGains(K=20.0, kappa=2.0, R=0.5, k_pump=k_pump, sync_rate=sync_rate)
     ctrl = PassivityController(model, tables, gains)
     s0 = 0.4
@@ -149,9 +101,9 @@ def test_theorem_4_1_in_simulation_converges_with_the_rate() -> None:
 
 
 def test_reset_starts_at_the_nearest_path_point_with_matched_rate() -> None:
-    spec = two_link()
-    model = BulletModel(spec)
-    tables = PathTables(default_path(spec), model)
+    spec = robot_profile("two_link")
+    model = PinocchioModel(spec)
+    tables = PassivityTables(default_path(spec), model)
     ctrl = PassivityController(model, tables)
     ref = tables.exact(1.3)
     ctrl.reset(ref.q, ref.qd, s_ref=0.0)
@@ -165,7 +117,6 @@ def test_reset_starts_at_the_nearest_path_point_with_matched_rate() -> None:
     assert ctrl2.state.s == 2.5
     ctrl2.reset(ref.q, ref.qd, s_ref=2.5, s0=0.1, sd0=0.3, sigma0=0.2)
     assert (ctrl2.state.s, ctrl2.state.sd, ctrl2.state.sigma) == (0.1, 0.3, 0.2)
-    model.close()
 
 
 @pytest.mark.parametrize(
@@ -182,14 +133,14 @@ def test_reset_starts_at_the_nearest_path_point_with_matched_rate() -> None:
 )
 def test_bad_gains_raise(kwargs) -> None:
     model = TwoLinkAnalyticModel()
-    tables = PathTables(default_path(two_link()), model, grid_size=64)
+    tables = PassivityTables(default_path(robot_profile("two_link")), model, grid_size=64)
     with pytest.raises(ValueError):
         PassivityController(model, tables, PassivityGains(**kwargs))
 
 
 def test_paper_pump_uses_qdot_direction() -> None:
     model = TwoLinkAnalyticModel()
-    tables = PathTables(default_path(two_link()), model, grid_size=256)
+    tables = PassivityTables(default_path(robot_profile("two_link")), model, grid_size=256)
     q, qd = tables(0.3).q + 0.1, np.array([0.4, -0.2])
     metric = PassivityController(model, tables, PassivityGains(pump="metric")).law(
         q, qd, 0.3, 0.8, 0.2
@@ -207,7 +158,9 @@ def test_policy_adapter_runs_an_episode_through_evaluate_policy() -> None:
     env = Monitor(gym.make("ptrack_gym/TwoLinkTrack-v0", max_episode_steps=300))
     u = env.unwrapped
     ctrl = PassivityController(
-        u.model, u.tables, PassivityGains(K=20.0, kappa=2.0, R=0.5, k_pump=5.0)
+        u.model,
+        passivity_tables(u.path, u.model),
+        PassivityGains(K=20.0, kappa=2.0, R=0.5, k_pump=5.0),
     )
     policy = ControllerPolicy(env, ctrl, record=True)
     rewards, lengths = evaluate_policy(policy, env, n_eval_episodes=2, return_episode_rewards=True)

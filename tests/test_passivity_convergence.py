@@ -15,8 +15,8 @@ from __future__ import annotations
 import gymnasium as gym
 
 import ptrack_gym  # noqa: F401
-from agents.factory import make_controller
 from agents.policy import ControllerPolicy
+from agents.registry import make_controller
 
 
 def converged_by(env_id: str, seed: int, settle_s: float, hold_s: float) -> bool:

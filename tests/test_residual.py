@@ -3,8 +3,6 @@ controller at a = 0, the checkers, features, bounds and error paths."""
 
 from __future__ import annotations
 
-import sys
-import types
 import warnings
 
 import gymnasium as gym
@@ -15,9 +13,9 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import ptrack_gym  # noqa: F401  (registers the environment ids)
 from agents.base import Controller
-from agents.factory import CONTROLLER_NAMES, make_controller, passivity_gains
 from agents.passivity import PassivityGains
 from agents.policy import ControllerPolicy, torque_to_action
+from agents.registry import CONTROLLER_NAMES, make_controller
 from agents.residual import DEFAULT_SCALE_FRACTION, ResidualWrapper, make_residual_env
 from ptrack_gym.errors import InvalidConfigError
 
@@ -179,27 +177,47 @@ def test_factory_builds_every_controller(make_env) -> None:
         make_controller("lqr", env)
 
 
-def test_factory_switches_to_passivity_defaults_when_the_module_exists(make_env, monkeypatch):
-    """``agents.passivity_defaults.default_passivity_gains`` wins over the interim gains;
-    its parameters are filled by name from the env."""
+def test_registry_passes_explicit_gains(make_env) -> None:
     env = make_env(TWO_LINK, **SHORT)
-    interim = passivity_gains(env)
-    seen: dict[str, object] = {}
+    gains = PassivityGains(K=7.0, kappa=2.0, R=0.5, k_pump=1.0)
+    assert make_controller("passivity", env, gains).gains == gains
+    assert make_controller("passivity", env).gains != gains
 
-    def default_passivity_gains(robot_name: str, model: object, k_pump: float = 1.0):
-        seen.update(robot_name=robot_name, model=model)
-        return PassivityGains(K=7.0, kappa=2.0, R=0.5, k_pump=k_pump)
 
-    fake = types.ModuleType("agents.passivity_defaults")
-    fake.default_passivity_gains = default_passivity_gains  # type: ignore[attr-defined]
-    monkeypatch.setitem(sys.modules, "agents.passivity_defaults", fake)
-    ctrl = make_controller("passivity", env)
-    assert ctrl.gains == PassivityGains(K=7.0, kappa=2.0, R=0.5, k_pump=1.0) != interim
-    assert seen == {"robot_name": "two_link", "model": env.unwrapped.model}
+class _NoFeatures:
+    """A controller without ``residual_features``: the wrapper falls back to τ_base / τ_max."""
 
-    def needs_unknown(robot_mass_kg: float) -> PassivityGains:
-        raise AssertionError("not called")
+    def __init__(self, n: int) -> None:
+        self.n = n
 
-    fake.default_passivity_gains = needs_unknown  # type: ignore[attr-defined]
-    with pytest.raises(InvalidConfigError, match="robot_mass_kg"):
-        make_controller("passivity", env)
+    def reset(self, q, qd, s_ref) -> None:
+        pass
+
+    def step(self, q, qd, dt):
+        return np.zeros(self.n)
+
+    def diagnostics(self) -> dict[str, float]:
+        return {}
+
+
+def test_a_controller_without_features_gets_the_base_torque_block(make_env) -> None:
+    inner = make_env(TWO_LINK, **SHORT)
+    env = ResidualWrapper(inner, _NoFeatures(2))
+    assert env.feature_names == ("tau_base_ratio_0", "tau_base_ratio_1")
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+
+
+def test_controller_policy_restarts_its_controller_after_an_env_reset(make_env) -> None:
+    """``action()`` right after ``env.reset`` starts the controller from the new episode's
+    start (its path point), not where the last episode left it."""
+    env = make_env("ptrack_gym/IiwaTrack-v0", max_episode_steps=100)
+    policy = ControllerPolicy(env, make_controller("passivity", env))
+    for seed in (0, 1):
+        obs, info = env.reset(seed=seed)
+        policy.action(obs)
+        assert policy.controller.diagnostics()["s"] == pytest.approx(info["s_ref"], abs=1e-2)
+        for _ in range(50):
+            obs, _, terminated, _, info = env.step(policy.action(obs))
+            assert not terminated
+        assert info["path_distance"] < 1e-3

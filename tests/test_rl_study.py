@@ -83,7 +83,7 @@ def test_a_folder_without_finished_runs_is_refused(tmp_path: Path) -> None:
 
 def test_a_normalized_run_without_its_statistics_is_refused(study: Path, tmp_path: Path) -> None:
     """Evaluating a VecNormalize run on raw observations would be silently wrong."""
-    from train.eval_episode import EpisodeSettings, Task, run_episode
+    from train.episode import EpisodeSettings, Task, run_episode
 
     run = tmp_path / "run"
     shutil.copytree(study / "residual_s0", run)

@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from train.eval_episode import EpisodeSettings, Task, run_episode, sb3_files
+from train.episode import EpisodeSettings, Task, run_episode
 from train.evaluate import load_config
+from train.sb3_runs import sb3_files
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = "sb3:models/sac_residual_passivity_twolink"

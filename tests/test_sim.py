@@ -25,13 +25,14 @@ import pybullet as p
 import pytest
 
 from ptrack_gym.errors import InvalidConfigError, SimulationClosedError
-from ptrack_gym.robots import BulletModel, RobotSpec, TwoLinkAnalyticModel, make_robot
+from ptrack_gym.robots import ROBOTS, BulletModel, RobotProfile, robot_profile
+from ptrack_gym.robots.two_link import TwoLinkAnalyticModel
 from ptrack_gym.sim import BulletArm, BulletSim
 
 #: Relative tolerance of the semi-implicit Euler identity (see the module docstring).
 EULER_RTOL = 1e-9
 
-ROBOT_NAMES = ["two_link", "iiwa", "panda"]
+ROBOT_NAMES = sorted(ROBOTS)
 
 
 @pytest.fixture
@@ -42,12 +43,12 @@ def sim() -> Iterator[BulletSim]:
 
 
 @pytest.fixture(scope="module")
-def specs() -> dict[str, RobotSpec]:
-    """The three robots' specs (the Panda's builds a URDF once)."""
-    return {name: make_robot(name) for name in ROBOT_NAMES}
+def specs() -> dict[str, RobotProfile]:
+    """Every robot's profile."""
+    return {name: robot_profile(name) for name in ROBOT_NAMES}
 
 
-def _load(sim: BulletSim, spec: RobotSpec) -> BulletArm:
+def _load(sim: BulletSim, spec: RobotProfile) -> BulletArm:
     """Load ``spec``'s arm into ``sim``."""
     return sim.load_arm(spec.urdf_path, spec.joint_names, spec.torque_limits_nm)
 
@@ -90,7 +91,7 @@ def test_engine_parameters_are_as_configured() -> None:
     [("joint2", "joint1"), ("joint1",), ("joint1", "joint2", "tip_joint"), ("a", "b")],
 )
 def test_load_arm_with_wrong_joint_names_raises_value_error(
-    sim: BulletSim, specs: dict[str, RobotSpec], joint_names: tuple[str, ...]
+    sim: BulletSim, specs: dict[str, RobotProfile], joint_names: tuple[str, ...]
 ) -> None:
     """The controlled joints must be exactly the URDF's movable joints, in order."""
     spec = specs["two_link"]
@@ -101,7 +102,7 @@ def test_load_arm_with_wrong_joint_names_raises_value_error(
 
 @pytest.mark.parametrize("limits", [(40.0,), (40.0, 20.0, 1.0), (40.0, 0.0), (-1.0, 20.0)])
 def test_load_arm_with_bad_torque_limits_raises_value_error(
-    sim: BulletSim, specs: dict[str, RobotSpec], limits: tuple[float, ...]
+    sim: BulletSim, specs: dict[str, RobotProfile], limits: tuple[float, ...]
 ) -> None:
     """Torque limits must be n positive numbers."""
     spec = specs["two_link"]
@@ -110,7 +111,7 @@ def test_load_arm_with_bad_torque_limits_raises_value_error(
 
 
 def test_arm_validates_vectors_and_names_non_finite_indices(
-    sim: BulletSim, specs: dict[str, RobotSpec]
+    sim: BulletSim, specs: dict[str, RobotProfile]
 ) -> None:
     """Vectors of the wrong length or with NaN/inf are refused before reaching PyBullet."""
     arm = _load(sim, specs["iiwa"])
@@ -153,7 +154,7 @@ def test_context_manager_and_garbage_collection_disconnect() -> None:
     assert not p.isConnected(physicsClientId=cid)
 
 
-def test_closed_sim_raises_simulation_closed_error(specs: dict[str, RobotSpec]) -> None:
+def test_closed_sim_raises_simulation_closed_error(specs: dict[str, RobotProfile]) -> None:
     """Every use of a closed BulletSim, directly or through its arm, raises."""
     s = BulletSim()
     spec = specs["two_link"]
@@ -175,7 +176,7 @@ def test_closed_sim_raises_simulation_closed_error(specs: dict[str, RobotSpec]) 
             use()
 
 
-def test_state_round_trips_exactly(sim: BulletSim, specs: dict[str, RobotSpec]) -> None:
+def test_state_round_trips_exactly(sim: BulletSim, specs: dict[str, RobotProfile]) -> None:
     """``reset_state`` then ``state`` returns the very same numbers."""
     arm = _load(sim, specs["panda"])
     rng = np.random.default_rng(3)
@@ -190,7 +191,7 @@ def test_state_round_trips_exactly(sim: BulletSim, specs: dict[str, RobotSpec]) 
 # -- torque clipping ----------------------------------------------------------------------
 
 
-def test_huge_torque_is_clipped_to_the_limits(specs: dict[str, RobotSpec]) -> None:
+def test_huge_torque_is_clipped_to_the_limits(specs: dict[str, RobotProfile]) -> None:
     """From rest at home, τ = (1e4, −1e4) N·m moves the arm exactly as (40, −20) N·m.
 
     Expected from the nominal model: q̇₁ = Δt M(q₀)⁻¹ (τ_clipped − g(q₀)) (semi-implicit
@@ -231,7 +232,7 @@ def test_huge_torque_is_clipped_to_the_limits(specs: dict[str, RobotSpec]) -> No
 
 
 @pytest.mark.parametrize("robot", ROBOT_NAMES)
-def test_one_step_is_semi_implicit_euler(robot: str, specs: dict[str, RobotSpec]) -> None:
+def test_one_step_is_semi_implicit_euler(robot: str, specs: dict[str, RobotProfile]) -> None:
     """q̇₁ = q̇₀ + Δt M(q₀)⁻¹(τ − h(q₀, q̇₀)) and q₁ = q₀ + Δt q̇₁, to 1e-9 relative.
 
     Five random states (q within ±0.2 rad of home, |q̇| ≤ 0.5 rad/s) and torques
@@ -265,7 +266,7 @@ def test_one_step_is_semi_implicit_euler(robot: str, specs: dict[str, RobotSpec]
         model.close()
 
 
-def test_two_link_step_matches_the_closed_form_model(specs: dict[str, RobotSpec]) -> None:
+def test_two_link_step_matches_the_closed_form_model(specs: dict[str, RobotProfile]) -> None:
     """The same identity with M and h from the textbook equations, not from PyBullet.
 
     An independent check that the plant is the two-link arm of the module docstring of

@@ -136,7 +136,7 @@ def test_resume_continues_steps_replay_buffer_and_statistics(tmp_path: Path) -> 
     [
         (["--set", "learning_rat=1e-3"], "unknown hyperparameter"),
         (["--env", "ptrack_gym/NoSuchTrack-v0"], "unknown env id"),
-        (["--disturbance", "earthquake"], "bad disturbance"),
+        (["--disturbance", "earthquake"], "unknown disturbance preset"),
         (["--set", "policy_kwargs=__import__('os').getcwd()"], "only dict"),
         (["--set", "policy_kwargs=dict(net_arch=[os.sep])"], "not allowed"),
         (["--control-hz", "300"], "control_hz"),
@@ -237,7 +237,7 @@ def test_reward_weights_reach_the_training_env() -> None:
     )  # fmt: skip
     env.reset(seed=0)
     _, reward, _, _, info = env.step(np.full(2, 0.5, dtype=np.float32))
-    assert env.unwrapped.reward_weights == (10.0, 0.0, 0.01)
+    assert env.unwrapped.config.reward_weights == (10.0, 0.0, 0.01)
     assert info["reward_time"] == 0.0
     assert reward == info["reward_path"] + info["reward_effort"]
     env.close()

@@ -27,7 +27,7 @@ from scipy import stats
 
 from ptrack_gym.errors import PtrackError
 from ptrack_gym.metrics import METRIC_NAMES
-from train.eval_episode import KEY_COLUMNS
+from train.episode import KEY_COLUMNS
 
 COLUMNS: tuple[str, ...] = (*KEY_COLUMNS, *METRIC_NAMES, "steps", "wall_s")
 

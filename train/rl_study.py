@@ -38,8 +38,9 @@ import pandas as pd
 import yaml
 
 from ptrack_gym.errors import InvalidConfigError
-from train.evaluate import EvalConfig, run_sweep
+from train.evaluate import EvalConfig
 from train.results import bootstrap_ci, load_frame
+from train.sweep import run_sweep
 
 #: Checkpoint file names of ``train.train`` (SB3's CheckpointCallback).
 _CKPT = re.compile(r"rl_model_(\d+)_steps\.zip$")

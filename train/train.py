@@ -7,10 +7,12 @@ Run from the repository root::
 
 Everything one run needs is one :class:`TrainConfig`; the CLI fills it (``--help``). The
 hyperparameters come from ``train/hyperparams/<algo>.yml`` (rl-baselines3-zoo format, see
-:func:`load_hyperparams` and ``docs/rl.md``), then ``--hyperparams FILE``, then
+:mod:`train.hyperparameters` and ``docs/rl.md``), then ``--hyperparams FILE``, then
 ``--set key=value``. Every configuration error — unknown algorithm, env id, residual
-base, disturbance or hyperparameter — raises :class:`TrainConfigError` (a ``ValueError``)
-or an argparse error *before* any env is built or any file written.
+base, disturbance, env argument (checked by the env's own validator) or hyperparameter —
+raises :class:`TrainConfigError` (a ``ValueError``) or an argparse error *before* any env
+is built or any file written. Envs come from :func:`train.envs.build_env`, checkpoints
+from :mod:`train.checkpoints`.
 
 The run folder ``--out`` receives ``config.yml`` (the resolved config and
 hyperparameters), ``command.txt`` (one line per invocation), ``versions.json``,
@@ -24,13 +26,10 @@ too, so ``--resume`` can continue any finished or interrupted run).
 from __future__ import annotations
 
 import argparse
-import ast
 import dataclasses
-import inspect
 import json
 import math
 import platform
-import re
 import shlex
 import sys
 from collections.abc import Callable, Sequence
@@ -46,54 +45,49 @@ import torch
 import yaml
 from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
+from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure as configure_logger
-from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
-from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
-from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 from torch import nn
 
-import ptrack_gym
-from agents.factory import CONTROLLER_NAMES
-from agents.residual import make_residual_env
-from ptrack_gym.disturbances import build_disturbances
+from agents.registry import CONTROLLER_NAMES
 from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.robots import profile_for_env_id
+from train.checkpoints import (
+    CHECKPOINT_PREFIX,
+    PruningCheckpointCallback,
+    latest_checkpoint,
+    load_checkpoint,
+    save_final,
+)
+from train.envs import build_env, check_env_kwargs, env_kwargs
+from train.hyperparameters import (
+    TrainConfigError,
+    action_noise,
+    load_hyperparams,
+    parse_python_literal,
+    parse_set,
+    resolve_hyperparams,
+)
+from train.sb3_runs import ALGOS
 
-#: The algorithms ``--algo`` accepts.
-ALGOS: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "td3": TD3, "ppo": PPO}
 #: ``--residual`` choices: "none" (pure RL) or a base controller name.
 RESIDUAL_CHOICES: tuple[str, ...] = ("none", *CONTROLLER_NAMES)
-#: Default control rate (Hz) per robot, physics staying at 1 kHz: the lowest rate of
-#: {100, 250, 500, 1000} Hz at which every base controller, run standalone from the
-#: path, tracks as well as at 1 kHz (docs/rl.md has the figures).
-DEFAULT_CONTROL_HZ: dict[str, float] = {"two_link": 250.0, "iiwa": 500.0, "panda": 500.0}
-#: The packaged hyperparameter files, ``<algo>.yml``.
-HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
-#: Keys of a hyperparameter YAML that are not arguments of the algorithm's constructor.
-SPECIAL_KEYS = ("n_timesteps", "normalize", "n_envs", "noise_type", "noise_std")
-#: Constructor arguments the script sets itself.
-_RESERVED = ("self", "env", "tensorboard_log", "verbose", "seed", "device", "_init_setup_model")
-#: Names a ``policy_kwargs`` / ``normalize`` string may use (besides dict/list literals).
-_SAFE_NAMES: dict[str, Any] = {
-    "nn.ReLU": nn.ReLU,
-    "nn.Tanh": nn.Tanh,
-    "nn.ELU": nn.ELU,
-    "nn.LeakyReLU": nn.LeakyReLU,
-    "nn.GELU": nn.GELU,
-    "nn.SiLU": nn.SiLU,
-    "True": True,
-    "False": False,
-    "None": None,
-}
-_CHECKPOINT_PREFIX = "rl_model"
-_CHECKPOINT_RE = re.compile(rf"^{_CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")
-_REPLAY_RE = re.compile(rf"^{_CHECKPOINT_PREFIX}_replay_buffer_(\d+)_steps\.pkl$")
 
-
-class TrainConfigError(InvalidConfigError):
-    """A training configuration is invalid (raised before anything is trained or written)."""
+__all__ = [
+    "ALGOS",
+    "TrainConfig",
+    "TrainConfigError",
+    "TrainResult",
+    "build_env",
+    "main",
+    "parse_args",
+    "parse_python_literal",
+    "run",
+    "validate",
+    "zero_init_actor",
+]
 
 
 @dataclass
@@ -107,7 +101,7 @@ class TrainConfig:
     env_id: str = "ptrack_gym/TwoLinkTrack-v0"
     """A ptrack_gym env id (``ptrack_gym.ENV_IDS``)."""
     residual: str = "none"
-    """"none" for pure RL, or the base controller of a residual policy (agents.factory)."""
+    """"none" for pure RL, or the base controller of a residual policy (agents.registry)."""
     scale_fraction: float = 0.1
     """Residual authority: scale = scale_fraction · τ_max per joint (N·m)."""
     disturbance: str = "none"
@@ -142,7 +136,7 @@ class TrainConfig:
     tensorboard: bool = False
     """Log to TensorBoard under ``out/tb/from_<steps>`` (progress.csv is written there always)."""
     control_hz: float | None = None
-    """Control rate (Hz); None → :data:`DEFAULT_CONTROL_HZ` of the robot. Physics: 1 kHz."""
+    """Control rate (Hz); None → the robot profile's ``default_control_hz``. Physics: 1 kHz."""
     episode_s: float = 5.0
     """Episode length (s): max_episode_steps = round(episode_s · control_hz)."""
     start: str = "on_path"
@@ -164,177 +158,6 @@ class TrainResult(NamedTuple):
     model: BaseAlgorithm  # the trained model (its envs are closed)
     run_dir: Path  # the run folder
     num_timesteps: int  # the model's step count at the end
-
-
-# -- parsing -------------------------------------------------------------------------
-def parse_python_literal(text: str) -> Any:
-    """Evaluate a ``policy_kwargs``-style string safely, e.g.
-    ``"dict(net_arch=[256, 256], activation_fn=nn.ReLU)"``.
-
-    Allowed: numbers, strings, lists, tuples, ``{...}`` dicts, ``dict(key=value, ...)``,
-    unary minus, and the names of :data:`_SAFE_NAMES`. Anything else raises
-    :class:`TrainConfigError`; no code is executed.
-    """
-    try:
-        tree = ast.parse(text.strip(), mode="eval")
-    except SyntaxError as exc:
-        raise TrainConfigError(f"cannot parse {text!r}: {exc.msg}") from None
-
-    def convert(node: ast.AST) -> Any:
-        if isinstance(node, ast.Constant):
-            return node.value
-        if isinstance(node, (ast.List, ast.Tuple)):
-            items = [convert(e) for e in node.elts]
-            return items if isinstance(node, ast.List) else tuple(items)
-        if isinstance(node, ast.Dict):
-            if any(k is None for k in node.keys):
-                raise TrainConfigError(f"'**' is not allowed in {text!r}")
-            return {convert(k): convert(v) for k, v in zip(node.keys, node.values, strict=True)}
-        if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
-            value = convert(node.operand)
-            if not isinstance(value, (int, float)):
-                raise TrainConfigError(f"unary sign on a non-number in {text!r}")
-            return -value if isinstance(node.op, ast.USub) else value
-        if isinstance(node, ast.Call):
-            if not (isinstance(node.func, ast.Name) and node.func.id == "dict") or node.args:
-                raise TrainConfigError(f"only dict(key=value, ...) calls are allowed in {text!r}")
-            if any(kw.arg is None for kw in node.keywords):
-                raise TrainConfigError(f"'**' is not allowed in {text!r}")
-            return {kw.arg: convert(kw.value) for kw in node.keywords}
-        name = ast.unparse(node)
-        if isinstance(node, (ast.Name, ast.Attribute)) and name in _SAFE_NAMES:
-            return _SAFE_NAMES[name]
-        raise TrainConfigError(
-            f"{name!r} is not allowed in {text!r}; allowed names: {sorted(_SAFE_NAMES)}"
-        )
-
-    return convert(tree.body)
-
-
-def parse_disturbance(text: str | None) -> Any:
-    """ "none" → None; "impulse" → "impulse"; "impulse:0.5" → ("impulse", 0.5)."""
-    if text is None or text == "none":
-        return None
-    name, sep, level = text.partition(":")
-    if not sep:
-        return name
-    try:
-        return (name, float(level))
-    except ValueError:
-        raise TrainConfigError(f"disturbance level must be a number: {text!r}") from None
-
-
-def parse_set(items: Sequence[str]) -> dict[str, Any]:
-    """``["key=value", ...]`` → dict; values are read as YAML scalars (``1e-3`` → float)."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise TrainConfigError(f"--set expects key=value, got {item!r}")
-        out[key.strip()] = yaml.safe_load(value)
-    return out
-
-
-# -- hyperparameters -----------------------------------------------------------------
-def _read_yaml(path: Path) -> dict[str, Any]:
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise TrainConfigError(f"hyperparameter file not found: {path}") from None
-    if data is None:
-        return {}
-    if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
-        raise TrainConfigError(f"{path}: expected a mapping of sections (default, env ids)")
-    return data
-
-
-def load_hyperparams(cfg: TrainConfig) -> dict[str, Any]:
-    """The merged hyperparameters of ``cfg`` (unvalidated, strings not yet parsed).
-
-    Precedence, lowest first: ``<algo>.yml``'s ``default``, its ``<env_id>`` section,
-    then the same two sections of ``cfg.hyperparams``, then ``cfg.overrides``.
-    """
-    merged: dict[str, Any] = {}
-    files = [HYPERPARAMS_DIR / f"{cfg.algo}.yml"]
-    if cfg.hyperparams is not None:
-        files.append(Path(cfg.hyperparams))
-    for path in files:
-        data = _read_yaml(path)
-        merged.update(data.get("default", {}))
-        merged.update(data.get(cfg.env_id, {}))
-    merged.update(cfg.overrides)
-    return merged
-
-
-def _allowed_keys(algo_cls: type[BaseAlgorithm]) -> set[str]:
-    params = set(inspect.signature(algo_cls.__init__).parameters) - set(_RESERVED)
-    return params | set(SPECIAL_KEYS)
-
-
-def resolve_hyperparams(cfg: TrainConfig, raw: dict[str, Any]) -> tuple[dict[str, Any], dict]:
-    """Validate and convert hyperparameters.
-
-    Returns ``(algo_kwargs, special)``: the constructor arguments (``policy_kwargs`` and
-    ``normalize`` strings parsed by :func:`parse_python_literal`, ``lin_<x>`` learning
-    rates turned into linear schedules from x to 0, lists for ``train_freq`` into
-    tuples, ``noise_type``/``noise_std`` into ``action_noise``) and the special keys.
-
-    Raises:
-        TrainConfigError: an unknown key (the message lists the known ones) or a value
-            that cannot be converted.
-    """
-    algo_cls = ALGOS[cfg.algo]
-    allowed = _allowed_keys(algo_cls)
-    unknown = sorted(set(raw) - allowed)
-    if unknown:
-        raise TrainConfigError(
-            f"unknown hyperparameter(s) {unknown} for {cfg.algo}; known: {sorted(allowed)}"
-        )
-    kwargs = {k: v for k, v in raw.items() if k not in SPECIAL_KEYS}
-    special = {k: raw[k] for k in SPECIAL_KEYS if k in raw}
-    kwargs.setdefault("policy", "MlpPolicy")
-    if isinstance(kwargs.get("policy_kwargs"), str):
-        kwargs["policy_kwargs"] = parse_python_literal(kwargs["policy_kwargs"])
-    if kwargs.get("policy_kwargs") is not None and not isinstance(kwargs["policy_kwargs"], dict):
-        raise TrainConfigError(f"policy_kwargs must be a dict, got {kwargs['policy_kwargs']!r}")
-    for key in ("learning_rate", "clip_range"):
-        value = kwargs.get(key)
-        if isinstance(value, str):
-            if not value.startswith("lin_"):
-                raise TrainConfigError(f"{key}: a number or 'lin_<start>', got {value!r}")
-            try:
-                kwargs[key] = LinearSchedule(float(value[4:]), 0.0, 1.0)
-            except ValueError:
-                raise TrainConfigError(f"{key}: bad linear schedule {value!r}") from None
-    if isinstance(kwargs.get("train_freq"), list):
-        kwargs["train_freq"] = tuple(kwargs["train_freq"])
-    if "noise_type" in special:
-        if cfg.algo == "ppo":
-            raise TrainConfigError("noise_type / noise_std apply to sac and td3 only")
-        special.setdefault("noise_std", 0.1)
-    if isinstance(special.get("normalize"), str):
-        special["normalize"] = parse_python_literal(special["normalize"])
-    normalize = special.get("normalize", False)
-    if not isinstance(normalize, (bool, dict)):
-        raise TrainConfigError(f"normalize must be a bool or a dict, got {normalize!r}")
-    if isinstance(normalize, dict):
-        known = {"norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon"}
-        bad = sorted(set(normalize) - known)
-        if bad:
-            raise TrainConfigError(f"unknown VecNormalize option(s) {bad}; known: {sorted(known)}")
-    return kwargs, special
-
-
-def _action_noise(special: dict[str, Any], n_actions: int) -> Any:
-    if "noise_type" not in special:
-        return None
-    std = float(special["noise_std"]) * np.ones(n_actions)
-    kind = special["noise_type"]
-    if kind == "normal":
-        return NormalActionNoise(np.zeros(n_actions), std)
-    if kind == "ornstein-uhlenbeck":
-        return OrnsteinUhlenbeckActionNoise(np.zeros(n_actions), std)
-    raise TrainConfigError(f"noise_type must be 'normal' or 'ornstein-uhlenbeck', got {kind!r}")
 
 
 # -- validation ------------------------------------------------------------------------
@@ -360,41 +183,32 @@ def validate(cfg: TrainConfig) -> Resolved:
     """
     if cfg.algo not in ALGOS:
         raise TrainConfigError(f"unknown algo {cfg.algo!r}; known: {sorted(ALGOS)}")
-    if cfg.env_id not in ptrack_gym.ENV_IDS:
-        raise TrainConfigError(f"unknown env id {cfg.env_id!r}; known: {ptrack_gym.ENV_IDS}")
     if cfg.residual not in RESIDUAL_CHOICES:
         raise TrainConfigError(
             f"unknown residual base {cfg.residual!r}; known: {list(RESIDUAL_CHOICES)}"
         )
     if not (math.isfinite(cfg.scale_fraction) and cfg.scale_fraction >= 0):
         raise TrainConfigError(f"scale_fraction must be >= 0, got {cfg.scale_fraction}")
-    robot = gym.registry[cfg.env_id].kwargs.get("robot", "two_link")
-    for text in (cfg.disturbance, cfg.eval_disturbance):
-        try:
-            build_disturbances(parse_disturbance(text), robot)
-        except InvalidConfigError as exc:
-            raise TrainConfigError(f"bad disturbance {text!r}: {exc}") from None
-    control_hz = DEFAULT_CONTROL_HZ[robot] if cfg.control_hz is None else float(cfg.control_hz)
-    if not (math.isfinite(control_hz) and control_hz > 0 and 1000.0 % control_hz == 0):
-        raise TrainConfigError(f"control_hz must divide the 1 kHz physics rate, got {control_hz}")
     if not (math.isfinite(cfg.episode_s) and cfg.episode_s > 0):
         raise TrainConfigError(f"episode_s must be positive, got {cfg.episode_s}")
-    max_episode_steps = max(1, round(cfg.episode_s * control_hz))
-    if cfg.start not in ("on_path", "rest_near_path"):
-        raise TrainConfigError(f"start must be 'on_path' or 'rest_near_path', got {cfg.start!r}")
-    if cfg.reward_weights is not None and (
-        len(cfg.reward_weights) != 3
-        or not all(math.isfinite(w) and w >= 0 for w in cfg.reward_weights)
-    ):
-        raise TrainConfigError(
-            f"reward_weights must be three non-negative numbers, got {cfg.reward_weights!r}"
-        )
+    try:
+        profile = profile_for_env_id(cfg.env_id)
+        control_hz = profile.default_control_hz if cfg.control_hz is None else cfg.control_hz
+        max_episode_steps = max(1, round(cfg.episode_s * control_hz))
+        for text in (cfg.disturbance, cfg.eval_disturbance or cfg.disturbance):
+            check_env_kwargs(
+                cfg.env_id,
+                env_kwargs(control_hz, max_episode_steps, cfg.start, text, cfg.reward_weights),
+            )
+    except InvalidConfigError as exc:
+        raise TrainConfigError(str(exc)) from None
     for name in ("eval_freq", "checkpoint_freq"):
         if getattr(cfg, name) < 0:
             raise TrainConfigError(f"{name} must be >= 0")
     if cfg.eval_episodes < 1 or cfg.torch_threads < 1:
         raise TrainConfigError("eval_episodes and torch_threads must be >= 1")
-    algo_kwargs, special = resolve_hyperparams(cfg, load_hyperparams(cfg))
+    raw = load_hyperparams(cfg.algo, cfg.env_id, cfg.hyperparams, cfg.overrides)
+    algo_kwargs, special = resolve_hyperparams(cfg.algo, raw)
     steps = cfg.steps if cfg.steps is not None else special.get("n_timesteps")
     if steps is None or int(steps) < 1:
         raise TrainConfigError(f"steps must be >= 1 (or n_timesteps in the YAML), got {steps}")
@@ -417,8 +231,8 @@ def validate(cfg: TrainConfig) -> Resolved:
         raise TrainConfigError(f"{run_dir} already holds a run; use --resume or a new --out")
     return Resolved(
         cfg,
-        robot,
-        control_hz,
+        profile.name,
+        float(control_hz),
         max_episode_steps,
         algo_kwargs,
         special,
@@ -441,42 +255,7 @@ def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
             )
 
 
-def latest_checkpoint(run_dir: Path) -> tuple[int, Path] | None:
-    """(steps, path) of the newest ``checkpoints/rl_model_<steps>_steps.zip``, or None."""
-    folder = run_dir / "checkpoints"
-    if not folder.is_dir():
-        return None
-    found = [(int(m.group(1)), p) for p in folder.iterdir() if (m := _CHECKPOINT_RE.match(p.name))]
-    return max(found) if found else None
-
-
 # -- environments ----------------------------------------------------------------------
-def build_env(
-    env_id: str,
-    residual: str,
-    scale_fraction: float,
-    control_hz: float,
-    max_episode_steps: int,
-    start: str,
-    disturbance: str | None,
-    reward_weights: Sequence[float] | None = None,
-) -> gym.Env:
-    """One training or evaluation env: ``gym.make`` (+ the residual wrapper). The
-    disturbances' horizon (energy budgets of sustained torques) is the episode length."""
-    env_kwargs: dict[str, Any] = {
-        "control_hz": control_hz,
-        "start": start,
-        "disturbance": parse_disturbance(disturbance),
-        "horizon_s": max_episode_steps / control_hz,
-        "max_episode_steps": max_episode_steps,
-    }
-    if reward_weights is not None:
-        env_kwargs["reward_weights"] = tuple(float(w) for w in reward_weights)
-    if residual == "none":
-        return gym.make(env_id, **env_kwargs)
-    return make_residual_env(env_id, residual, scale_fraction, **env_kwargs)
-
-
 def _env_factory(res: Resolved, disturbance: str | None) -> Callable[[], gym.Env]:
     c = res.cfg
     return partial(
@@ -600,72 +379,6 @@ def write_run_files(res: Resolved, run_dir: Path, argv: Sequence[str] | None) ->
     (run_dir / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
 
 
-def prune_replay_buffers(folder: Path, keep_steps: int) -> None:
-    """Delete the checkpoint replay buffers of ``folder`` older than ``keep_steps``.
-
-    A replay buffer is saved whole (SAC's default 300 000 transitions of the residual
-    TwoLink env: ~60 MB), so only the newest one, the one ``--resume`` uses, is kept.
-    """
-    for path in folder.glob(f"{_CHECKPOINT_PREFIX}_replay_buffer_*_steps.pkl"):
-        m = _REPLAY_RE.match(path.name)
-        if m and int(m.group(1)) < keep_steps:
-            path.unlink()
-
-
-class PruningCheckpointCallback(CheckpointCallback):
-    """SB3's CheckpointCallback that keeps only the newest replay buffer."""
-
-    def _on_step(self) -> bool:
-        result = super()._on_step()
-        if self.n_calls % self.save_freq == 0 and self.save_replay_buffer:
-            prune_replay_buffers(Path(self.save_path), self.num_timesteps)
-        return result
-
-
-def _save_final(model: BaseAlgorithm, train_env: VecEnv, run_dir: Path) -> None:
-    """model.zip / vecnormalize.pkl, and the same state as a checkpoint for --resume."""
-    steps = model.num_timesteps
-    ckpt = run_dir / "checkpoints"
-    ckpt.mkdir(parents=True, exist_ok=True)
-    model.save(run_dir / "model.zip")
-    model.save(ckpt / f"{_CHECKPOINT_PREFIX}_{steps}_steps.zip")
-    if isinstance(model, OffPolicyAlgorithm):
-        model.save_replay_buffer(ckpt / f"{_CHECKPOINT_PREFIX}_replay_buffer_{steps}_steps.pkl")
-        prune_replay_buffers(ckpt, steps)
-    if isinstance(train_env, VecNormalize):
-        train_env.save(str(run_dir / "vecnormalize.pkl"))
-        train_env.save(str(ckpt / f"{_CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"))
-
-
-def _load_checkpoint(
-    res: Resolved, run_dir: Path, train_env: VecEnv, eval_env: VecEnv
-) -> tuple[BaseAlgorithm, VecEnv]:
-    found = latest_checkpoint(run_dir)
-    assert found is not None  # validate() checked
-    steps, path = found
-    ckpt = run_dir / "checkpoints"
-    vecnorm = ckpt / f"{_CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"
-    if res.normalize_kwargs is not None:
-        if not vecnorm.exists():
-            raise TrainConfigError(f"--resume: {vecnorm} is missing")
-        assert isinstance(train_env, VecNormalize) and isinstance(eval_env, VecNormalize)
-        train_env = VecNormalize.load(str(vecnorm), train_env.venv)
-        train_env.training = True
-        eval_env.obs_rms = train_env.obs_rms.copy()
-    c = res.cfg
-    model = ALGOS[c.algo].load(
-        path,
-        env=train_env,
-        device=c.device,
-        tensorboard_log=str(run_dir / "tb") if c.tensorboard else None,
-        print_system_info=False,
-    )
-    replay = ckpt / f"{_CHECKPOINT_PREFIX}_replay_buffer_{steps}_steps.pkl"
-    if isinstance(model, OffPolicyAlgorithm) and replay.exists():
-        model.load_replay_buffer(replay)
-    return model, train_env
-
-
 def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
     """Validate ``cfg``, build the envs and the model (or resume), train, save.
 
@@ -680,10 +393,13 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
     train_env, eval_env = make_envs(res, run_dir, session=f"from_{start_steps}")
     try:
         if cfg.resume:
-            model, train_env = _load_checkpoint(res, run_dir, train_env, eval_env)
+            model, train_env = load_checkpoint(
+                ALGOS[cfg.algo], run_dir, train_env, eval_env,
+                res.normalize_kwargs is not None, cfg.device, cfg.tensorboard,
+            )  # fmt: skip
         else:
             kwargs = dict(res.algo_kwargs)
-            noise = _action_noise(res.special, int(np.prod(train_env.action_space.shape)))
+            noise = action_noise(res.special, int(np.prod(train_env.action_space.shape)))
             if noise is not None:
                 kwargs["action_noise"] = noise
             model = ALGOS[cfg.algo](
@@ -709,7 +425,7 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
                 PruningCheckpointCallback(
                     save_freq=max(cfg.checkpoint_freq // res.n_envs, 1),
                     save_path=str(run_dir / "checkpoints"),
-                    name_prefix=_CHECKPOINT_PREFIX,
+                    name_prefix=CHECKPOINT_PREFIX,
                     save_replay_buffer=True,
                     save_vecnormalize=True,
                 )
@@ -733,7 +449,7 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
             tb_log_name=cfg.algo,
             progress_bar=cfg.progress_bar,
         )
-        _save_final(model, train_env, run_dir)
+        save_final(model, train_env, run_dir)
     finally:
         train_env.close()
         eval_env.close()

@@ -16,8 +16,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.wrappers import RecordVideo
 
-from agents.factory import make_controller
 from agents.policy import ControllerPolicy
+from agents.registry import make_controller
 
 
 class RenderEvery(gym.Wrapper[Any, Any, Any, Any]):

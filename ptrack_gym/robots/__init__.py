@@ -1,39 +1,55 @@
-"""Robots: specs (data), the simulated arm is built by :mod:`ptrack_gym.sim`, and models.
+"""Robots: one file per robot (``<name>.py`` defines ``PROFILE``), and the dynamics models.
 
-``ROBOTS`` maps a robot name to the function that builds its :class:`RobotSpec`.
+Adding a robot is one file in this package and one name in :data:`ROBOT_MODULES`: the
+env id ``ptrack_gym/<env_name>Track-v0`` is registered from it, and every test battery
+that loops over :data:`ROBOTS` runs on it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import importlib
 
 from ptrack_gym.errors import InvalidConfigError
-from ptrack_gym.robots.iiwa import iiwa
-from ptrack_gym.robots.model import BulletModel, RobotModel
-from ptrack_gym.robots.panda import panda
-from ptrack_gym.robots.spec import RobotSpec
-from ptrack_gym.robots.two_link import TwoLinkAnalyticModel, TwoLinkParams, two_link
+from ptrack_gym.robots.model import BulletModel, PinocchioModel, RobotModel, home_inertia_kgm2
+from ptrack_gym.robots.profile import DisturbanceScales, EECircle, RobotProfile
 
-ROBOTS: dict[str, Callable[[], RobotSpec]] = {"two_link": two_link, "iiwa": iiwa, "panda": panda}
+#: The robot files of this package, in registration order.
+ROBOT_MODULES: tuple[str, ...] = ("two_link", "iiwa", "panda")
+
+#: name → profile of every registered robot.
+ROBOTS: dict[str, RobotProfile] = {
+    (profile := importlib.import_module(f"ptrack_gym.robots.{module}").PROFILE).name: profile
+    for module in ROBOT_MODULES
+}
 
 
-def make_robot(name: str) -> RobotSpec:
-    """The spec of the robot called ``name`` (one of ``ROBOTS``)."""
+def robot_profile(name: str) -> RobotProfile:
+    """The profile of the robot called ``name`` (a key of :data:`ROBOTS`)."""
     try:
-        return ROBOTS[name]()
+        return ROBOTS[name]
     except KeyError:
         raise InvalidConfigError(f"unknown robot {name!r}; known: {sorted(ROBOTS)}") from None
 
 
+def profile_for_env_id(env_id: str) -> RobotProfile:
+    """The profile of the robot whose env id is ``env_id``."""
+    for profile in ROBOTS.values():
+        if profile.env_id == env_id:
+            return profile
+    known = sorted(p.env_id for p in ROBOTS.values())
+    raise InvalidConfigError(f"unknown env id {env_id!r}; known: {known}")
+
+
 __all__ = [
     "ROBOTS",
+    "ROBOT_MODULES",
     "BulletModel",
+    "DisturbanceScales",
+    "EECircle",
+    "PinocchioModel",
     "RobotModel",
-    "RobotSpec",
-    "TwoLinkAnalyticModel",
-    "TwoLinkParams",
-    "iiwa",
-    "make_robot",
-    "panda",
-    "two_link",
+    "RobotProfile",
+    "home_inertia_kgm2",
+    "profile_for_env_id",
+    "robot_profile",
 ]

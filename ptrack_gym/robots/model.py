@@ -1,11 +1,19 @@
-"""Dynamics models: the :class:`RobotModel` protocol and a PyBullet-backed implementation.
+"""Dynamics models: the :class:`RobotModel` protocol and two implementations.
 
 A model answers questions about ``M(q) q̈ + C(q, q̇) q̇ + g(q) = τ`` at any state it is
-given; it holds no state of the simulated arm. :class:`BulletModel` owns a private
-PyBullet client with its own copy of the URDF, so perturbing the simulated body
-(payload, ``changeDynamics``) never changes the model: the controller keeps the nominal
-model on purpose. (PyBullet's dynamics queries on a body go stale after
-``changeDynamics``, bullet3 issue 4809 — another reason never to query the plant.)
+given; it holds no state of the simulated arm, so perturbing the simulated body (payload,
+``changeDynamics``) never changes it: controllers keep the nominal model on purpose.
+
+* :class:`PinocchioModel` — the nominal model every env and controller uses: Pinocchio's
+  CRBA, RNEA and generalized gravity on the robot's URDF, its ``Data`` reused across calls.
+  The mass matrix and the potential at the last q are cached (keyed on the bytes of q), so
+  the env, the controller and the metrics evaluating them at the same measured state share
+  one evaluation; a cache keyed on q stays correct under sensing noise (another q, another
+  entry).
+* :class:`BulletModel` — the same quantities from PyBullet, on a private, query-only copy
+  of the arm in its own client: the tests' independent cross-check (≤ 1e-12 relative).
+  (PyBullet's dynamics queries on a body go stale after ``changeDynamics``, bullet3 issue
+  4809 — another reason never to query the plant.)
 """
 
 from __future__ import annotations
@@ -14,8 +22,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from ptrack_gym.robots.spec import FloatArray, RobotSpec
-from ptrack_gym.sim import BulletSim
+from ptrack_gym.robots.profile import FloatArray, RobotProfile
 
 
 @runtime_checkable
@@ -45,19 +52,121 @@ class RobotModel(Protocol):
         ...
 
 
+class PinocchioModel:
+    """:class:`RobotModel` by Pinocchio (the field's rigid-body dynamics library).
+
+    Args:
+        profile: the robot; its URDF is parsed by ``pinocchio.buildModelFromUrdf`` (fixed
+            base; fixed joints merge their links' inertias into the parent body).
+        gravity_mps2: gravity magnitude (m/s²), along −z.
+
+    Raises:
+        ValueError: the URDF's joints are not exactly the profile's controlled joints.
+    """
+
+    def __init__(self, profile: RobotProfile, gravity_mps2: float = 9.81) -> None:
+        import pinocchio as pin
+
+        self._pin = pin
+        self.profile = profile
+        self.gravity_mps2 = float(gravity_mps2)
+        self._model = pin.buildModelFromUrdf(profile.urdf_path)
+        self._model.gravity.linear = np.array([0.0, 0.0, -self.gravity_mps2])
+        names = tuple(self._model.names[i] for i in range(1, self._model.njoints))
+        if names != profile.joint_names or self._model.nq != profile.n:
+            raise ValueError(
+                f"{profile.name}: Pinocchio's joints {names} are not the controlled joints "
+                f"{profile.joint_names}"
+            )
+        self._data = self._model.createData()
+        self.n = profile.n
+        self.cache_key = ("pinocchio", profile.urdf_path, self.gravity_mps2)
+        """Equal keys, equal models (for caches of model-derived tables)."""
+        self._zeros = np.zeros(self.n)
+        self._mass_key: bytes | None = None
+        self._mass: FloatArray = np.zeros((self.n, self.n))
+        self._potential_key: bytes | None = None
+        self._potential = 0.0
+
+    def mass_matrix(self, q: FloatArray) -> FloatArray:
+        """M(q) (kg·m²), shape (n, n), by the composite-rigid-body algorithm (CRBA).
+
+        Returns a read-only array shared with later calls at the same q (cached).
+        """
+        q = np.ascontiguousarray(q, dtype=np.float64)
+        key = q.tobytes()
+        if key != self._mass_key:
+            upper = self._pin.crba(self._model, self._data, q)  # upper triangle filled
+            mass = np.triu(upper)
+            mass += np.triu(upper, 1).T
+            mass.setflags(write=False)
+            self._mass, self._mass_key = mass, key
+        return self._mass
+
+    def potential(self, q: FloatArray) -> float:
+        """U(q) = Σ_bodies m_i g z_i(q) (J), z the height of a body's centre of mass (cached)."""
+        q = np.ascontiguousarray(q, dtype=np.float64)
+        key = q.tobytes()
+        if key != self._potential_key:
+            self._potential = float(self._pin.computePotentialEnergy(self._model, self._data, q))
+            self._potential_key = key
+        return self._potential
+
+    def gravity(self, q: FloatArray) -> FloatArray:
+        """g(q) = ∂U/∂q (N·m)."""
+        q = np.ascontiguousarray(q, dtype=np.float64)
+        return self._pin.computeGeneralizedGravity(self._model, self._data, q).copy()
+
+    def inverse_dynamics(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        """τ = M(q) q̈ + C(q, q̇) q̇ + g(q) (N·m), by recursive Newton–Euler (RNEA)."""
+        return self._pin.rnea(
+            self._model,
+            self._data,
+            np.ascontiguousarray(q, dtype=np.float64),
+            np.ascontiguousarray(qd, dtype=np.float64),
+            np.ascontiguousarray(qdd, dtype=np.float64),
+        ).copy()
+
+    def coriolis(self, q: FloatArray, qd: FloatArray) -> FloatArray:
+        """C(q, q̇) q̇ = RNEA(q, q̇, 0) − g(q) (N·m)."""
+        return self.inverse_dynamics(q, qd, self._zeros) - self.gravity(q)
+
+    def coriolis_matrix(self, q: FloatArray, qd: FloatArray) -> FloatArray:
+        """The Christoffel Coriolis matrix C(q, q̇) (N·m·s/rad), shape (n, n), for which
+        Ṁ − 2C is skew-symmetric."""
+        return self._pin.computeCoriolisMatrix(
+            self._model,
+            self._data,
+            np.ascontiguousarray(q, dtype=np.float64),
+            np.ascontiguousarray(qd, dtype=np.float64),
+        ).copy()
+
+    def kinetic_energy(self, q: FloatArray, qd: FloatArray) -> float:
+        """½ q̇ᵀ M(q) q̇ (J)."""
+        qd = np.asarray(qd, dtype=np.float64)
+        return 0.5 * float(qd @ self.mass_matrix(q) @ qd)
+
+    def close(self) -> None:
+        """Nothing to release (for symmetry with :class:`BulletModel`)."""
+
+
 class BulletModel:
     """:class:`RobotModel` computed by PyBullet on a private, query-only copy of the arm.
 
     Args:
-        spec: the robot; its URDF is loaded into a new ``p.DIRECT`` client.
+        profile: the robot; its URDF is loaded into a new ``p.DIRECT`` client.
         gravity_mps2: gravity magnitude (m/s²) used by ``gravity``/``potential``.
     """
 
-    def __init__(self, spec: RobotSpec, gravity_mps2: float = 9.81) -> None:
-        self.spec = spec
+    def __init__(self, profile: RobotProfile, gravity_mps2: float = 9.81) -> None:
+        from ptrack_gym.sim import BulletSim  # PyBullet only when this model is used
+
+        self.profile = profile
         self.gravity_mps2 = float(gravity_mps2)
         self._sim = BulletSim(gravity_mps2=gravity_mps2)
-        self._arm = self._sim.load_arm(spec.urdf_path, spec.joint_names, spec.torque_limits_nm)
+        self._arm = self._sim.load_arm(
+            profile.urdf_path, profile.joint_names, profile.torque_limits_nm
+        )
         self.n = self._arm.n
         self.link_masses_kg: FloatArray = self._arm.link_masses()
         """Nominal masses (kg) of links 0..L−1 (PyBullet order, fixed base excluded)."""
@@ -84,10 +193,6 @@ class BulletModel:
         coms = self._arm.link_coms(q)  # (L, 3)
         return float(self.gravity_mps2 * (self.link_masses_kg @ coms[:, 2]))
 
-    def com_jacobian(self, link_name: str, q: FloatArray) -> FloatArray:
-        """Translational Jacobian (m/rad) of a link's centre of mass at q, shape (3, n)."""
-        return self._arm.com_jacobian(link_name, q)
-
     def kinetic_energy(self, q: FloatArray, qd: FloatArray) -> float:
         """½ q̇ᵀ M(q) q̇ (J)."""
         return 0.5 * float(qd @ self._arm.mass_matrix(q) @ qd)
@@ -95,3 +200,8 @@ class BulletModel:
     def close(self) -> None:
         """Disconnect the model's private client (idempotent)."""
         self._sim.close()
+
+
+def home_inertia_kgm2(model: RobotModel, profile: RobotProfile) -> FloatArray:
+    """diag M(q_home) (kg·m²), shape (n,): the joint inertias the default gains scale by."""
+    return np.diag(model.mass_matrix(profile.home())).copy()

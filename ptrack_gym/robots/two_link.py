@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ptrack_gym.robots.spec import FloatArray, RobotSpec, materialize_urdf
+from ptrack_gym.robots.profile import DisturbanceScales, EECircle, FloatArray, RobotProfile
 
 
 @dataclass(frozen=True)
@@ -108,29 +108,48 @@ def two_link_urdf(params: TwoLinkParams) -> str:
 """
 
 
-def two_link(params: TwoLinkParams | None = None) -> RobotSpec:
-    """The two-link arm's spec. Torque limits (40, 20) N·m are about 3× the worst-case
-    gravity torques (12.3, 2.5) N·m of the default parameters."""
-    params = params or TwoLinkParams()
-    return RobotSpec(
-        name="two_link",
-        urdf_path=materialize_urdf("two_link", two_link_urdf(params)),
-        joint_names=("joint1", "joint2"),
-        torque_limits_nm=(40.0, 20.0),
-        joint_lower_rad=(-np.pi, -np.pi),
-        joint_upper_rad=(np.pi, np.pi),
-        home_q_rad=(-0.6, 1.0),
-        path_amplitude_rad=(0.5, 0.6),
-        ee_link="tip",
-        camera_target_m=(0.3, 0.0, 0.0),
-        camera_distance_m=1.4,
-    )
+def _urdf() -> str:
+    return two_link_urdf(TwoLinkParams())
+
+
+#: The two-link arm with the default :class:`TwoLinkParams`. Torque limits (40, 20) N·m are
+#: about 3× the worst-case gravity torques (12.3, 2.5) N·m.
+PROFILE = RobotProfile(
+    name="two_link",
+    env_name="TwoLink",
+    urdf=_urdf,
+    joint_names=("joint1", "joint2"),
+    torque_limits_nm=(40.0, 20.0),
+    joint_lower_rad=(-np.pi, -np.pi),
+    joint_upper_rad=(np.pi, np.pi),
+    home_q_rad=(-0.6, 1.0),
+    path_amplitude_rad=(0.5, 0.6),
+    path_period_s=4.0,
+    ee_link="tip",
+    circle=EECircle(center_m=(0.5, 0.0, -0.3), radius_m=0.15, normal=(0.0, 1.0, 0.0)),
+    disturbance_scales=DisturbanceScales(
+        impulse_j=0.3, push_n=10.0, payload_kg=0.5, mismatch_links=("link1", "link2")
+    ),
+    default_control_hz=250.0,
+    # Rates of the gain studies (docs/passivity_gain_study.md, docs/baselines.md).
+    controller_gains={
+        "passivity": {"omega": 20.0, "omega_s": 20.0, "rho": 10.0, "lam": 2.0, "m_floor": 0.1},
+        "computed_torque": {"omega": 20.0},
+        "pd_gravity": {"omega": 20.0},
+        "slotine_li": {"omega": 20.0},
+    },
+    convergence_target_s=20.0,
+    camera_target_m=(0.3, 0.0, 0.0),
+    camera_distance_m=1.4,
+    source="our URDF (two_link_urdf) with the closed-form model TwoLinkAnalyticModel",
+)
 
 
 class TwoLinkAnalyticModel:
     """Closed-form dynamics of :func:`two_link` (see the module docstring).
 
-    Implements the :class:`ptrack_gym.robots.model.RobotModel` protocol.
+    Implements the :class:`ptrack_gym.robots.model.RobotModel` protocol: an independent
+    check of the Pinocchio and PyBullet models in the tests.
     """
 
     def __init__(self, params: TwoLinkParams | None = None) -> None:
@@ -180,6 +199,17 @@ class TwoLinkAnalyticModel:
     def inverse_dynamics(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
         """τ = M(q) q̈ + C(q, q̇) q̇ + g(q) (N·m)."""
         return self.mass_matrix(q) @ qdd + self.coriolis(q, qd) + self.gravity(q)
+
+    def coriolis_matrix(self, q: FloatArray, qd: FloatArray) -> FloatArray:
+        """The Christoffel Coriolis matrix C(q, q̇) (N·m·s/rad), shape (2, 2):
+        [[−h q̇₂, −h (q̇₁ + q̇₂)], [h q̇₁, 0]], h = m₂ l₁ l_c2 sin q₂."""
+        p = self.params
+        h = p.m2_kg * p.l1_m * p.lc2_m * np.sin(q[1])
+        return np.array([[-h * qd[1], -h * (qd[0] + qd[1])], [h * qd[0], 0.0]])
+
+    def kinetic_energy(self, q: FloatArray, qd: FloatArray) -> float:
+        """½ q̇ᵀ M(q) q̇ (J)."""
+        return 0.5 * float(qd @ self.mass_matrix(q) @ qd)
 
     def ee_position(self, q: FloatArray) -> FloatArray:
         """Tip position (x, z) in the plane (m)."""

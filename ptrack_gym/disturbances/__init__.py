@@ -1,0 +1,65 @@
+"""Composable, seeded disturbances and model mismatch for the tracking environments.
+
+* :mod:`~ptrack_gym.disturbances.base` — the :class:`Disturbance` interface (its hooks)
+  and the :class:`DisturbanceContext` a disturbance may read;
+* :mod:`~ptrack_gym.disturbances.families` — the families (impulse, step, periodic and
+  noise torques, push, payload, mismatch, action and observation noise, delay);
+* :mod:`~ptrack_gym.disturbances.presets` — presets × levels and :func:`build_disturbances`;
+* :mod:`~ptrack_gym.disturbances.runner` — the sub-step loop and the work ledger.
+
+Everything random is drawn from the stream given to ``reset`` (which the env derives from
+its reset seed alone), in an order that does not depend on the actions: two controllers
+run with the same seed meet exactly the same disturbances.
+"""
+
+from ptrack_gym.disturbances.base import (
+    DISTURBANCES,
+    Disturbance,
+    DisturbanceContext,
+    MassChange,
+)
+from ptrack_gym.disturbances.families import (
+    ActionNoise,
+    ImpulseTorque,
+    Mismatch,
+    NoiseTorque,
+    ObservationDelay,
+    ObservationNoise,
+    Payload,
+    PeriodicTorque,
+    Push,
+    StepTorque,
+)
+from ptrack_gym.disturbances.presets import (
+    ENERGY_PRESETS,
+    PRESETS,
+    DisturbanceSpec,
+    build_disturbances,
+    from_spec,
+    preset_specs,
+)
+from ptrack_gym.disturbances.runner import DisturbanceRunner
+
+__all__ = [
+    "DISTURBANCES",
+    "ENERGY_PRESETS",
+    "PRESETS",
+    "ActionNoise",
+    "Disturbance",
+    "DisturbanceContext",
+    "DisturbanceRunner",
+    "DisturbanceSpec",
+    "ImpulseTorque",
+    "MassChange",
+    "Mismatch",
+    "NoiseTorque",
+    "ObservationDelay",
+    "ObservationNoise",
+    "Payload",
+    "PeriodicTorque",
+    "Push",
+    "StepTorque",
+    "build_disturbances",
+    "from_spec",
+    "preset_specs",
+]

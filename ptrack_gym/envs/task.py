@@ -1,0 +1,129 @@
+"""The tracking task: from the arm's state to the observation, the reward and the info.
+
+:class:`TrackingTask` knows the reference path (and its projector), the observation
+layout, the reward weights and the info keys; it never touches the simulator. The env
+calls :meth:`TrackingTask.observe` once per reset and per step.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from ptrack_gym.paths import PathProjector, ReferencePath
+from ptrack_gym.robots.model import RobotModel
+from ptrack_gym.robots.profile import FloatArray
+
+
+class TrackingTask:
+    """Observation, reward and info of the tracking task (see ``TrackingEnv``'s docstring
+    for the tables).
+
+    Args:
+        path: the reference q_r(s).
+        projector: the nearest-point search on ``path``.
+        model: the nominal model (for ``info["energy_j"]`` when ``info_energy``).
+        max_speed_rad_s: the joint-speed bound v_max of the observation (rad/s).
+        reward_weights: (w_path, w_time, w_effort).
+        unstable_penalty: the reward of an unstable step is −unstable_penalty.
+        info_energy: add ``energy_j`` = H(q, q̇) to the info (one M(q) and U(q) per step).
+    """
+
+    def __init__(
+        self,
+        path: ReferencePath,
+        projector: PathProjector,
+        model: RobotModel,
+        max_speed_rad_s: float,
+        reward_weights: tuple[float, float, float],
+        unstable_penalty: float,
+        info_energy: bool,
+    ) -> None:
+        self.path = path
+        self.projector = projector
+        self.model = model
+        self.n = path.n
+        self.reward_weights = reward_weights
+        self.unstable_penalty = unstable_penalty
+        self.info_energy = info_energy
+        n = self.n
+        ang, vel = np.full(n, 4 * np.pi), np.full(n, max_speed_rad_s)
+        high = np.concatenate([ang, vel, ang, vel, 2 * ang, 2 * vel, [1.0, 1.0]])
+        self._high32 = high.astype(np.float32)
+        self._high = self._high32.astype(np.float64)
+        self._buf = np.zeros(6 * n + 2)
+        self.observation_space = spaces.Box(-self._high32, self._high32, dtype=np.float32)
+
+    def observation(
+        self,
+        q_meas: FloatArray,
+        qd_meas: FloatArray,
+        q_ref: FloatArray,
+        qd_ref: FloatArray,
+        s_ref: float,
+    ) -> np.ndarray:
+        """The observation (6n + 2, float32): measured q, q̇, q_r(s_ref), q_r'(s_ref), the
+        errors q_r − q and q_r' − q̇ (measured), and (sin, cos) of 2π s_ref / S, clipped to
+        the observation space."""
+        n, buf = self.n, self._buf
+        buf[:n], buf[n : 2 * n], buf[2 * n : 3 * n], buf[3 * n : 4 * n] = (
+            q_meas,
+            qd_meas,
+            q_ref,
+            qd_ref,
+        )
+        np.subtract(q_ref, q_meas, out=buf[4 * n : 5 * n])
+        np.subtract(qd_ref, qd_meas, out=buf[5 * n : 6 * n])
+        omega = 2.0 * math.pi * s_ref / self.path.period_s
+        buf[6 * n], buf[6 * n + 1] = math.sin(omega), math.cos(omega)
+        return np.minimum(np.maximum(buf, -self._high), self._high).astype(np.float32)
+
+    def observe(
+        self,
+        q: FloatArray,
+        qd: FloatArray,
+        q_meas: FloatArray,
+        qd_meas: FloatArray,
+        s_ref: float,
+        t_s: float,
+        action: FloatArray,
+        tau_nm: FloatArray,
+        disturbance_torque_nm: FloatArray,
+        disturbance_work_j: float,
+        unstable: bool,
+    ) -> tuple[np.ndarray, float, dict[str, Any]]:
+        """Observation, reward and info after a step (or a reset, with a zero action).
+
+        Reward: r = −(w_path d² + w_time |q_r(s_ref) − q|² + w_effort |a|²/n), d the path
+        distance of the true q; −``unstable_penalty`` when ``unstable``.
+        """
+        q_ref, qd_ref, _ = self.path.evaluate(s_ref)
+        obs = self.observation(q_meas, qd_meas, q_ref, qd_ref, s_ref)
+        near = self.projector.nearest(q)
+        e = q_ref - q
+        e2 = float(e @ e)
+        w_path, w_time, w_effort = self.reward_weights
+        info: dict[str, Any] = {
+            "t_s": t_s,
+            "s_ref": s_ref,
+            "path_distance": near.distance,
+            "path_s": near.s,
+            "tracking_error": math.sqrt(e2),
+            "tau_nm": tau_nm,
+            "reward_path": -w_path * near.distance**2,
+            "reward_time": -w_time * e2,
+            "reward_effort": -w_effort * float(action @ action) / self.n,
+            "disturbance_torque_nm": disturbance_torque_nm.copy(),
+            "disturbance_work_j": disturbance_work_j,
+            "unstable": unstable,
+        }
+        if self.info_energy:
+            info["energy_j"] = self.model.kinetic_energy(q, qd) + self.model.potential(q)
+        if unstable:
+            reward = -self.unstable_penalty
+        else:
+            reward = info["reward_path"] + info["reward_time"] + info["reward_effort"]
+        return obs, float(reward), info

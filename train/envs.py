@@ -1,0 +1,88 @@
+"""Environment building shared by training and evaluation: one disturbance parser, one
+``build_env``, and the check of env arguments before anything runs.
+
+Env arguments are validated by the env's own validator,
+:class:`ptrack_gym.envs.config.EnvConfig`; nothing here re-checks them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+
+import ptrack_gym  # noqa: F401  (registers the envs)
+from ptrack_gym.envs.config import EnvConfig
+from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.robots import RobotProfile, profile_for_env_id
+
+
+def parse_disturbance(text: str | None) -> Any:
+    """The env's ``disturbance`` argument from the scripts' syntax: ``"none"`` → None;
+    ``"impulse"`` → ``"impulse"``; ``"impulse:0.5"`` → ``("impulse", 0.5)``."""
+    if text is None or text == "none":
+        return None
+    name, sep, level = text.partition(":")
+    if not sep:
+        return name
+    try:
+        return (name, float(level))
+    except ValueError:
+        raise InvalidConfigError(f"disturbance level must be a number: {text!r}") from None
+
+
+def env_kwargs(
+    control_hz: float,
+    max_episode_steps: int,
+    start: str,
+    disturbance: str | None,
+    reward_weights: Sequence[float] | None = None,
+) -> dict[str, Any]:
+    """``gym.make`` keyword arguments of a script's env: the disturbances' horizon (energy
+    budgets of sustained torques, onsets) is the episode length."""
+    kwargs: dict[str, Any] = {
+        "control_hz": control_hz,
+        "start": start,
+        "disturbance": parse_disturbance(disturbance),
+        "horizon_s": max_episode_steps / control_hz,
+        "max_episode_steps": max_episode_steps,
+    }
+    if reward_weights is not None:
+        kwargs["reward_weights"] = tuple(reward_weights)
+    return kwargs
+
+
+def check_env_kwargs(env_id: str, kwargs: dict[str, Any]) -> RobotProfile:
+    """Validate the arguments ``gym.make(env_id, **kwargs)`` would get, without building
+    the env (no simulator is started); returns the robot's profile.
+
+    Raises:
+        InvalidConfigError: an unknown env id or a bad argument, naming it.
+    """
+    profile = profile_for_env_id(env_id)
+    steps = kwargs.get("max_episode_steps")
+    if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
+        raise InvalidConfigError(f"max_episode_steps must be an integer >= 1, got {steps!r}")
+    EnvConfig(robot=profile.name, **{k: v for k, v in kwargs.items() if k != "max_episode_steps"})
+    return profile
+
+
+def build_env(
+    env_id: str,
+    residual: str,
+    scale_fraction: float,
+    control_hz: float,
+    max_episode_steps: int,
+    start: str,
+    disturbance: str | None,
+    reward_weights: Sequence[float] | None = None,
+) -> gym.Env[Any, Any]:
+    """One training or evaluation env: ``gym.make`` (``residual="none"``) or the residual
+    wrapper around the default-gain controller ``residual``."""
+    kwargs = env_kwargs(control_hz, max_episode_steps, start, disturbance, reward_weights)
+    if residual == "none":
+        return gym.make(env_id, **kwargs)
+    from agents.residual import make_residual_env
+
+    return make_residual_env(env_id, residual, scale_fraction, **kwargs)

@@ -1,0 +1,239 @@
+"""One evaluation episode: a controller on an env under one disturbance, with one seed.
+
+This is what a worker process runs. It needs nothing from the parent but a
+:class:`Task` and the :class:`EpisodeSettings`, so the process and Ray backends run the
+same function and give the same rows.
+
+Pairing: the env's reset seed depends only on (seed, episode), never on the controller,
+so every controller meets the same start state and — through the env's own disturbance
+stream — the same disturbance schedule.
+
+Controllers are names of ``agents.registry`` or ``sb3:<run folder>``: a model trained by
+``python -m train.train`` (pure or residual), rebuilt from the run's ``config.yml`` — its
+residual base, scale and control rate — with its ``vecnormalize.pkl`` statistics when
+present, acting deterministically; ``sb3:<run folder>@<steps>`` runs the run's checkpoint
+of that many steps instead (:mod:`train.sb3_runs`). A model runs at its training control
+rate, so it meets the same disturbance schedule in time (onsets, frequencies) but per-step
+noise draws differ; its env's disturbance horizon is the sweep's episode length, as for
+every other controller. Either way the episode is one loop over a policy's ``predict``.
+
+Imports are kept to what an episode needs: torch and SB3 only when a model is evaluated.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from typing import Any, Protocol
+
+import gymnasium as gym
+import numpy as np
+
+import ptrack_gym  # noqa: F401  (registers the envs)
+from agents.policy import ControllerPolicy
+from agents.registry import make_controller
+from ptrack_gym.metrics import EpisodeRecord, episode_metrics
+from train.envs import build_env, env_kwargs
+
+#: Columns identifying an episode, in the CSV's order.
+KEY_COLUMNS: tuple[str, ...] = ("controller", "disturbance", "level", "seed", "episode")
+SB3_PREFIX = "sb3:"
+
+
+class Predictor(Protocol):
+    """Anything with SB3's ``predict`` (a ``ControllerPolicy``, a trained model)."""
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]: ...
+
+
+@dataclass(frozen=True)
+class EpisodeSettings:
+    """Settings shared by every episode of a sweep (see ``train/configs/*.yml``)."""
+
+    env_id: str
+    episode_s: float
+    control_hz: float
+    start: str
+    failure_distance_rad: float
+    recovery_threshold_rad: float
+
+
+@dataclass(frozen=True)
+class Task:
+    """One episode to run: who, under what, with which seed."""
+
+    controller: str
+    disturbance: str
+    level: float
+    seed: int
+    episode: int
+
+    def key(self) -> tuple[str, str, str, str, str]:
+        """The CSV key of this task (strings, as read back from the CSV)."""
+        return (
+            self.controller,
+            self.disturbance,
+            f"{self.level:g}",
+            str(self.seed),
+            str(self.episode),
+        )
+
+    @property
+    def reset_seed(self) -> int:
+        """The env reset seed: a function of (seed, episode) only — the pairing."""
+        return 10_000 * self.seed + self.episode
+
+
+def label(controller: str) -> str:
+    """A file-name-safe label of a controller name (``sb3:runs/x`` → ``sb3-x``,
+    ``sb3:runs/x@2000`` → ``sb3-x-2000``)."""
+    if controller.startswith(SB3_PREFIX):
+        from pathlib import Path
+
+        run, _, steps = controller[len(SB3_PREFIX) :].partition("@")
+        return "sb3-" + Path(run).name + (f"-{steps}" if steps else "")
+    return controller
+
+
+def _disturbance_text(disturbance: str, level: float) -> str | None:
+    return None if disturbance == "none" else f"{disturbance}:{level}"
+
+
+#: Per-process caches: building an env (and a model's env) costs more than an episode's
+#: first steps; an episode resets its env, so reuse is safe.
+_ENV_CACHE: dict[tuple[Any, ...], gym.Env[Any, Any]] = {}
+_SB3_CACHE: dict[tuple[Any, ...], tuple[gym.Env[Any, Any], Predictor]] = {}
+
+
+def _env(settings: EpisodeSettings, disturbance: str, level: float) -> gym.Env[Any, Any]:
+    key = (settings, disturbance, level)
+    if key not in _ENV_CACHE:
+        steps = round(settings.episode_s * settings.control_hz)
+        _ENV_CACHE[key] = gym.make(
+            settings.env_id,
+            **env_kwargs(
+                settings.control_hz, steps, settings.start, _disturbance_text(disturbance, level)
+            ),
+        )
+    return _ENV_CACHE[key]
+
+
+def _sb3_env_and_policy(
+    controller: str, settings: EpisodeSettings, disturbance: str, level: float
+) -> tuple[gym.Env[Any, Any], Predictor]:
+    key = (controller, settings, disturbance, level)
+    if key not in _SB3_CACHE:
+        from train.sb3_runs import load_sb3_policy  # torch and SB3 only for a model
+
+        policy, cfg = load_sb3_policy(controller, settings.env_id)
+        c, derived = cfg["config"], cfg["derived"]
+        env = build_env(
+            settings.env_id,
+            c["residual"],
+            c["scale_fraction"],
+            derived["control_hz"],
+            round(settings.episode_s * derived["control_hz"]),
+            settings.start,
+            _disturbance_text(disturbance, level),
+        )
+        _SB3_CACHE[key] = (env, policy)
+    return _SB3_CACHE[key]
+
+
+def _first_impulse_end(schedule: list[dict[str, Any]]) -> float | None:
+    ends = [d["onset_s"] + d["duration_s"] for d in schedule if d["type"] in ("impulse", "push")]
+    return min(ends) if ends else None
+
+
+def run_episode(
+    task: Task, settings: EpisodeSettings, keep_trace: bool = False
+) -> tuple[dict[str, Any], dict[str, np.ndarray] | None]:
+    """Run ``task`` and return its CSV row (keys + metrics + wall time) and, with
+    ``keep_trace``, the time series for the example-episode plots."""
+    wall0 = time.perf_counter()
+    policy: Predictor
+    if task.controller.startswith(SB3_PREFIX):
+        env, policy = _sb3_env_and_policy(task.controller, settings, task.disturbance, task.level)
+    else:
+        env = _env(settings, task.disturbance, task.level)
+        policy = ControllerPolicy(env, make_controller(task.controller, env))
+    u = env.unwrapped
+    rows: dict[str, list[Any]] = {
+        k: [] for k in ("t", "q", "qd", "s_ref", "tau", "d", "path_s", "energy")
+    }
+    unstable, info = False, {}
+    obs, _ = env.reset(seed=task.reset_seed)
+    episode_start = np.ones(1, dtype=bool)
+    while True:
+        action, _ = policy.predict(obs, episode_start=episode_start, deterministic=True)
+        episode_start = np.zeros(1, dtype=bool)
+        obs, _, terminated, truncated, info = env.step(action)
+        q, qd = u.joint_state()
+        rows["t"].append(info["t_s"])
+        rows["q"].append(q)
+        rows["qd"].append(qd)
+        rows["s_ref"].append(info["s_ref"])
+        rows["tau"].append(info["tau_nm"])
+        rows["d"].append(info["path_distance"])
+        rows["path_s"].append(info["path_s"])
+        if keep_trace:  # the passivity controller's storage terms (NaN for the others)
+            diag: dict[str, float] = getattr(policy, "last_diagnostics", {})
+            rows["energy"].append(
+                [diag.get(k, np.nan) for k in ("h_plus_w", "h_r", "phi", "psi", "energy")]
+            )
+        if terminated or truncated:
+            unstable = bool(info["unstable"])
+            break
+    record = EpisodeRecord(
+        t_s=np.array(rows["t"]),
+        q=np.array(rows["q"]),
+        qd=np.array(rows["qd"]),
+        s_ref=np.array(rows["s_ref"]),
+        tau_nm=np.array(rows["tau"]),
+        torque_limits_nm=u.torque_limits_nm,
+        disturbance_work_j=float(info["disturbance_work_j"]),
+        unstable=unstable,
+        impulse_end_s=_first_impulse_end(u.disturbance_schedule()),
+        intended_steps=env.spec.max_episode_steps if env.spec is not None else None,
+        path_distance=np.array(rows["d"]),
+        path_s=np.array(rows["path_s"]),
+    )
+    metrics = episode_metrics(
+        record,
+        u.model,
+        u.projector,
+        failure_distance_rad=settings.failure_distance_rad,
+        recovery_threshold_rad=settings.recovery_threshold_rad,
+    )
+    row = {
+        **asdict(task),
+        **metrics,
+        "steps": len(record.t_s),
+        "wall_s": time.perf_counter() - wall0,
+    }
+    row["level"] = f"{task.level:g}"
+    trace = None
+    if keep_trace:
+        trace = {
+            "t_s": record.t_s,
+            "q": record.q,
+            "q_ref": u.path.evaluate(record.s_ref)[0],
+            "path_distance": np.array(rows["d"]),
+            # H+W_r(σ), H_r, φ, ψ, E (passivity), and the arm's H(q, q̇) by the nominal model
+            "energy": np.column_stack(
+                [
+                    np.array(rows["energy"]),
+                    [
+                        u.model.kinetic_energy(q, qd) + u.model.potential(q)
+                        for q, qd in zip(record.q, record.qd, strict=True)
+                    ],
+                ]
+            ),
+        }
+    return row, trace

@@ -1,0 +1,97 @@
+"""Trained Stable-Baselines3 runs of ``python -m train.train``: the algorithms, the files
+of a run folder, and a run loaded as a policy with SB3's ``predict``.
+
+A run is named ``sb3:<run folder>`` (its final ``model.zip``) or ``sb3:<run folder>@<steps>``
+(its checkpoint ``checkpoints/rl_model_<steps>_steps.zip`` with the matching VecNormalize
+statistics): a learning curve is a sweep over a run's checkpoints.
+"""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from stable_baselines3 import PPO, SAC, TD3
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+from ptrack_gym.errors import InvalidConfigError
+
+#: The algorithms ``--algo`` accepts.
+ALGOS: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "td3": TD3, "ppo": PPO}
+
+SB3_PREFIX = "sb3:"
+
+
+def sb3_files(name: str) -> tuple[Path, Path, Path]:
+    """(run folder, model zip, VecNormalize pickle) of ``sb3:<run>`` or ``sb3:<run>@<steps>``;
+    the pickle may not exist (a run without normalization)."""
+    run, at, steps = name[len(SB3_PREFIX) :].partition("@")
+    run_dir = Path(run)
+    if not at:
+        return run_dir, run_dir / "model.zip", run_dir / "vecnormalize.pkl"
+    if not steps.isdigit():
+        raise InvalidConfigError(f"{name}: '@' must be followed by a step count")
+    ckpt = run_dir / "checkpoints"
+    return (
+        run_dir,
+        ckpt / f"rl_model_{steps}_steps.zip",
+        ckpt / f"rl_model_vecnormalize_{steps}_steps.pkl",
+    )
+
+
+def run_config(run_dir: Path) -> dict[str, Any]:
+    """The ``config.yml`` of a run folder (``config``, ``derived``, ``hyperparams``)."""
+    return yaml.safe_load((run_dir / "config.yml").read_text())
+
+
+def check_sb3_run(name: str, env_id: str) -> Path:
+    """The run folder of ``sb3:…``, checked: its config and model exist and it was
+    trained on ``env_id``; raises :class:`InvalidConfigError`."""
+    run_dir, model_zip, _ = sb3_files(name)
+    for path in (run_dir / "config.yml", model_zip):
+        if not path.exists():
+            raise InvalidConfigError(f"{name}: {path} does not exist")
+    trained_on = run_config(run_dir)["config"]["env_id"]
+    if trained_on != env_id:
+        raise InvalidConfigError(f"{name} was trained on {trained_on}, not {env_id}")
+    return run_dir
+
+
+class SB3Policy:
+    """A trained model acting deterministically on raw observations: SB3's ``predict``,
+    with the run's VecNormalize observation statistics applied first when it has them."""
+
+    def __init__(self, model: BaseAlgorithm, obs_stats: Any | None) -> None:
+        self.model = model
+        self.obs_stats = obs_stats
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]:
+        x = self.obs_stats.normalize_obs(observation) if self.obs_stats is not None else observation
+        return self.model.predict(x, state, episode_start, deterministic)
+
+
+def load_sb3_policy(name: str, env_id: str) -> tuple[SB3Policy, dict[str, Any]]:
+    """The run ``name`` as an :class:`SB3Policy`, and the run's config (to rebuild its env:
+    residual base, scale, control rate)."""
+    run_dir = check_sb3_run(name, env_id)
+    _, model_zip, stats_pkl = sb3_files(name)
+    cfg = run_config(run_dir)
+    model = ALGOS[cfg["config"]["algo"]].load(str(model_zip), device="cpu")
+    if cfg["derived"].get("vec_normalize") and not stats_pkl.exists():
+        raise InvalidConfigError(
+            f"{name}: the run normalizes observations but {stats_pkl} is missing"
+        )
+    stats = None
+    if stats_pkl.exists():
+        with stats_pkl.open("rb") as fh:
+            stats = pickle.load(fh)  # a VecNormalize without its venv: normalize_obs works
+    return SB3Policy(model, stats), cfg

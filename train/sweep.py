@@ -1,0 +1,226 @@
+"""Run an evaluation sweep: episodes in worker processes or on Ray, results appended as
+they finish, then the summary, plots and video.
+
+:func:`run_sweep` is what ``python -m train.evaluate`` runs for an
+:class:`~train.evaluate.EvalConfig`. Worker processes (spawned, one thread each) import
+only :mod:`train.episode` and what an episode needs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import shlex
+import sys
+from collections.abc import Iterator
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import yaml
+from tqdm import tqdm
+
+from ptrack_gym.errors import InvalidConfigError
+from train.episode import SB3_PREFIX, EpisodeSettings, Task, label, run_episode
+from train.results import (
+    EpisodeWriter,
+    done_keys,
+    format_table,
+    load_frame,
+    read_episodes,
+    summarize,
+)
+
+if TYPE_CHECKING:
+    from train.evaluate import EvalConfig
+
+
+#: Thread-count variables set to 1 (unless the user set them) in the environment the
+#: worker processes inherit: the parallelism is across episodes, and BLAS and torch (when
+#: an episode evaluates a model) read them when they load.
+_ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def _run_processes(
+    tasks: list[Task], settings: EpisodeSettings, workers: int, example: set[Task]
+) -> Iterator[tuple[dict[str, Any], Any, Task]]:
+    if workers == 1:
+        for task in tasks:
+            row, trace = run_episode(task, settings, task in example)
+            yield row, trace, task
+        return
+    import multiprocessing as mp
+
+    for name in _ONE_THREAD:
+        os.environ.setdefault(name, "1")
+    ctx = mp.get_context("spawn")  # no PyBullet client or thread is inherited
+    pool = ProcessPoolExecutor(workers, mp_context=ctx)
+    try:
+        pending = {pool.submit(run_episode, t, settings, t in example): t for t in tasks}
+        while pending:
+            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in finished:
+                task = pending.pop(fut)
+                row, trace = fut.result()  # a failed episode raises here...
+                yield row, trace, task
+    finally:  # ...and the queued ones are cancelled, not run for nothing
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _run_ray(
+    tasks: list[Task],
+    settings: EpisodeSettings,
+    workers: int,
+    address: str | None,
+    example: set[Task],
+) -> Iterator[tuple[dict[str, Any], Any, Task]]:
+    import ray  # validate() checked that the extra is installed
+
+    started = not ray.is_initialized()
+    if started:
+        if address:
+            ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        else:
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    remote = ray.remote(num_cpus=1)(run_episode)
+    refs = {remote.remote(t, settings, t in example): t for t in tasks}
+    try:
+        while refs:
+            done, _ = ray.wait(list(refs), num_returns=1)
+            for ref in done:
+                task = refs.pop(ref)
+                row, trace = ray.get(ref)
+                yield row, trace, task
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def run_sweep(
+    cfg: EvalConfig,
+    resume: bool = False,
+    progress: bool = True,
+    show: bool = True,
+    module: str = "train.evaluate",
+) -> Path:
+    """Run (or resume) the sweep of ``cfg``; return the output folder. ``show`` prints
+    the summary table; ``module`` names the entry point recorded in ``command.txt``."""
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    episodes = out / "episodes.csv"
+    if episodes.exists() and episodes.stat().st_size > 0 and not resume:
+        raise InvalidConfigError(
+            f"{episodes} exists: pass --resume to continue it, or another --out"
+        )
+    finished = done_keys(read_episodes(episodes))  # validates the file before anything runs
+    if finished:
+        _check_same_sweep(cfg, out / "config.yml")
+    (out / "config.yml").write_text(yaml.safe_dump(dataclasses.asdict(cfg), sort_keys=False))
+    (out / "command.txt").write_text(
+        shlex.join([sys.executable, "-m", module, *sys.argv[1:]]) + "\n"
+    )
+    tasks = [t for t in cfg.tasks() if t.key() not in finished]
+    example_condition = _example_condition(cfg)
+    example = {
+        t for t in cfg.tasks() if (t.disturbance, t.level, t.seed, t.episode) == example_condition
+    }
+    workers = cfg.workers or len(os.sched_getaffinity(0))
+    settings = cfg.settings()
+    writer = EpisodeWriter(episodes)
+    traces: dict[str, Any] = {}
+    try:
+        runner = (
+            _run_ray(tasks, settings, workers, cfg.ray_address, example)
+            if cfg.backend == "ray"
+            else _run_processes(tasks, settings, workers, example)
+        )
+        for row, trace, task in tqdm(
+            runner, total=len(tasks), disable=not progress, desc="episodes"
+        ):
+            writer.write(row)
+            if trace is not None:
+                np.savez_compressed(out / f"trace_{label(task.controller)}.npz", **trace)
+                traces[task.controller] = trace
+    finally:
+        writer.close()
+    _finish(cfg, out, show)
+    return out
+
+
+#: Config fields that do not change any episode's numbers: a resume may change them.
+_RUN_ONLY_FIELDS = ("out", "workers", "backend", "ray_address", "plots", "video",
+                    "bootstrap_resamples", "reference")  # fmt: skip
+
+
+def _check_same_sweep(cfg: EvalConfig, saved: Path) -> None:
+    """Refuse to resume a sweep whose saved config differs in a field that changes results
+    (the rows would mix episodes of different settings)."""
+    if not saved.exists():
+        raise InvalidConfigError(
+            f"{saved} is missing: cannot check that --resume continues the same sweep"
+        )
+    old = yaml.safe_load(saved.read_text()) or {}
+    new = dataclasses.asdict(cfg)
+    changed = sorted(k for k in new if k not in _RUN_ONLY_FIELDS and k in old and old[k] != new[k])
+    if changed:
+        diffs = ", ".join(f"{k} {old[k]!r} -> {new[k]!r}" for k in changed)
+        raise InvalidConfigError(f"--resume with a different sweep: {diffs}; use another --out")
+
+
+def _example_condition(cfg: EvalConfig) -> tuple[str, float, int, int]:
+    """The (disturbance, level, seed, episode) whose episodes are plotted: the first
+    disturbed preset at its middle level, seed 0."""
+    disturbed = [d for d in cfg.disturbances if d != "none"]
+    if not disturbed:
+        return ("none", 0.0, 0, 0)
+    levels = sorted(cfg.levels)
+    return (disturbed[0], float(levels[len(levels) // 2]), 0, 0)
+
+
+def _finish(cfg: EvalConfig, out: Path, show: bool = True) -> None:
+    df = load_frame(out / "episodes.csv")
+    wanted = {t.key() for t in cfg.tasks()}
+    keys = df[["controller", "disturbance", "level", "seed", "episode"]].astype(str)
+    keys["level"] = df["level"].map(lambda v: f"{v:g}")
+    df = df[[tuple(r) in wanted for r in keys.itertuples(index=False)]]
+    summary = summarize(df, cfg.metric, cfg.reference, cfg.bootstrap_resamples)
+    summary.to_csv(out / "summary.csv", index=False)
+    table = format_table(summary, cfg.metric)
+    (out / "summary.md").write_text(table + "\n")
+    if show:
+        print(table)
+    if cfg.plots:
+        from train.plots import example_plot, failure_plot, robustness_plot
+
+        robustness_plot(summary, cfg.metric, out / f"robustness_{cfg.metric}.png")
+        failure_plot(df, out / "failures.png")
+        cond = _example_condition(cfg)
+        for ctrl in cfg.controllers:
+            path = out / f"trace_{label(ctrl)}.npz"
+            if path.exists():
+                with np.load(path) as z:
+                    trace = {k: z[k] for k in z.files}
+                example_plot(
+                    trace,
+                    f"{ctrl}: {cond[0]} level {cond[1]:g}, seed 0",
+                    out / f"example_{label(ctrl)}.png",
+                )
+    if cfg.video:
+        from train.video import record_episode
+
+        dist, level, seed, episode = _example_condition(cfg)
+        for ctrl in [c for c in cfg.controllers if not c.startswith(SB3_PREFIX)]:
+            record_episode(
+                cfg.env_id,
+                ctrl,
+                out / "videos" / ctrl,
+                seed=Task(ctrl, dist, level, seed, episode).reset_seed,
+                env_kwargs={
+                    "control_hz": cfg.control_hz,
+                    "start": cfg.start,
+                    "disturbance": None if dist == "none" else (dist, level),
+                    "horizon_s": cfg.episode_s,
+                    "max_episode_steps": round(cfg.episode_s * cfg.control_hz),
+                },
+            )
