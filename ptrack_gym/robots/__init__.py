@@ -14,7 +14,7 @@ from ptrack_gym.robots.model import BulletModel, PinocchioModel, RobotModel, hom
 from ptrack_gym.robots.profile import DisturbanceScales, EECircle, RobotProfile
 
 #: The robot files of this package, in registration order.
-ROBOT_MODULES: tuple[str, ...] = ("two_link", "iiwa", "panda")
+ROBOT_MODULES: tuple[str, ...] = ("two_link", "iiwa", "panda", "xarm6")
 
 #: name → profile of every registered robot.
 ROBOTS: dict[str, RobotProfile] = {
