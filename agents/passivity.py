@@ -60,6 +60,7 @@ import numpy as np
 
 from agents.base import ControlContext, FeatureBlock, FloatArray
 from agents.gains import cap_stiffness, rates
+from agents.passivity_kernel import OUT, law_step, law_tables
 from agents.passivity_tables import PassivityTables, passivity_tables
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
@@ -251,8 +252,37 @@ class PassivityController:
         self.k_diag = self.gains.stiffness(self.n)
         self.start = start
         self.sd0 = sd0
-        self.state = PassivityState()
-        self.last: LawOutput | None = None
+        self._state = np.zeros(3)  # (s, ṡ, σ), integrated in place by the compiled law
+        g = self.gains
+        gains_vector = np.array(
+            [g.kappa, g.R, g.k_pump, 1.0 if g.pump == "metric" else 0.0, g.speed_eps,
+             g.sync_rate, g.sync_ratio, *self.k_diag]
+        )  # fmt: skip
+        self._tables = law_tables(gains_vector, tables.knots, tables.coefficients, tables.period_s)
+        self._out = np.zeros(len(OUT) + 3 * self.n)
+        self._last_tau: FloatArray | None = None
+
+    @property
+    def state(self) -> PassivityState:
+        """The controller's state (s, ṡ, σ) after its last step."""
+        s, sd, sigma = self._state.tolist()
+        return PassivityState(s=s, sd=sd, sigma=sigma)
+
+    @property
+    def last(self) -> LawOutput | None:
+        """Everything the law computed at the last step (None before the first)."""
+        if self._last_tau is None:
+            return None
+        n, out = self.n, self._out
+        k = len(OUT)
+        scalars = dict(zip(OUT, out[:k].tolist(), strict=True))
+        return LawOutput(
+            tau=self._last_tau.copy(),
+            tau_sync=out[k : k + n].copy(),
+            tau_r0=out[k + n : k + 2 * n].copy(),
+            pump_torque=out[k + 2 * n : k + 3 * n].copy(),
+            **scalars,
+        )
 
     # -- the law (pure) --------------------------------------------------------------
     def law(self, q: FloatArray, qd: FloatArray, s: float, sd: float, sigma: float) -> LawOutput:
@@ -361,20 +391,31 @@ class PassivityController:
         if sd0 is None:
             m = self.model.mass_matrix(q)
             sd0 = float(np.sqrt(max(float(qd @ m @ qd), 0.0) / self.tables(s0).m_r))
-        self.state = PassivityState(s=float(s0), sd=float(sd0), sigma=float(sigma0))
-        self.last = None
+        self._state[:] = (float(s0), float(sd0), float(sigma0))
+        self._last_tau = None
 
     def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
-        """τ (N·m) for the measured (q, q̇); then integrate (s, ṡ, σ) over ``dt`` (s)."""
+        """τ (N·m) for the measured (q, q̇); then integrate (s, ṡ, σ) over ``dt`` (s).
+
+        The compiled twin of :meth:`step_numpy` (:func:`agents.passivity_kernel.law_step`)."""
+        q = np.asarray(q, dtype=np.float64)
+        tau = np.empty(self.n)
+        law_step(
+            q, np.asarray(qd, dtype=np.float64), self.model.mass_matrix(q),
+            self.model.potential(q), dt, self._state, *self._tables, tau, self._out,
+        )  # fmt: skip
+        self._last_tau = tau
+        return tau
+
+    def step_numpy(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
+        """The readable reference of :meth:`step`: :meth:`law` at the current state, then
+        symplectic Euler — ṡ ← ṡ + dt·s̈, s ← s + dt·ṡ(new), σ ← σ + dt·σ̇."""
         st = self.state
         out = self.law(
             np.asarray(q, dtype=np.float64), np.asarray(qd, dtype=np.float64), st.s, st.sd, st.sigma
         )
-        self.last = out
         sd_new = st.sd + dt * out.s_dd
-        self.state = PassivityState(
-            s=st.s + dt * sd_new, sd=sd_new, sigma=st.sigma + dt * out.sigma_dot
-        )
+        self._state[:] = (st.s + dt * sd_new, sd_new, st.sigma + dt * out.sigma_dot)
         return out.tau
 
     def diagnostics(self) -> dict[str, float]:

@@ -116,8 +116,13 @@ class PassivityTables:
             )
         self.min_m_r = float(m_r[worst])
         self.columns = columns
-        knots = np.append(self.grid_s, self.period_s)
-        self._spline = CubicSpline(knots, np.vstack([columns, columns[:1]]), bc_type="periodic")
+        self.knots = np.append(self.grid_s, self.period_s)
+        self._spline = CubicSpline(
+            self.knots, np.vstack([columns, columns[:1]]), bc_type="periodic"
+        )
+        self.coefficients: FloatArray = self._spline.c
+        """The spline's coefficients (4, N, 3n + 4) on ``knots`` (scipy's ``PPoly`` layout),
+        for the compiled law (:mod:`agents.passivity_kernel`)."""
         self.projector = PathProjector(path, grid_size)
 
     def __call__(self, s: float) -> PathPoint:

@@ -24,7 +24,12 @@ import numpy as np
 
 from agents.base import ControlContext, FeatureBlock, FloatArray
 from agents.gains import Gain, cap_bandwidth, check_gain, gain_vector, rates, rounded
-from agents.reference_clock import ReferenceClock, error_diagnostics, time_indexed_features
+from agents.reference_clock import (
+    ReferenceClock,
+    ReferenceErrors,
+    error_diagnostics,
+    time_indexed_features,
+)
 from ptrack_gym.paths import ReferencePath
 from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
 
@@ -93,25 +98,26 @@ class PDGravityController:
         self.n = model.n
         self.kp = gain_vector(gains.kp_nm_rad, self.n, "kp_nm_rad")  # (n,) N·m/rad
         self.kd = gain_vector(gains.kd_nms_rad, self.n, "kd_nms_rad")  # (n,) N·m·s/rad
-        self._diag: dict[str, float] = {}
+        self._last: tuple[float, ReferenceErrors] | None = None  # (s after, errors)
+        self._s0 = 0.0
 
     def reset(self, q: FloatArray, qd: FloatArray, s_ref: float) -> None:
         """Start the clock at s = ``s_ref`` (s)."""
         self.clock.reset(s_ref)
-        self._diag = {"s": float(s_ref)}
+        self._last, self._s0 = None, float(s_ref)
 
     def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
         """τ = K_p e + K_d ė + g(q) (N·m), shape (n,); then s ← s + dt."""
         err = self.clock.errors(q, qd, dt)
         tau = self.kp * err.e + self.kd * err.ed + self.model.gravity(q)
-        self._diag = error_diagnostics(self.clock.advance(dt), err)
+        self._last = (self.clock.advance(dt), err)
         return tau
 
     def diagnostics(self) -> dict[str, float]:
         """``s``: the clock after the last step (s), equal to the env's ``s_ref`` then;
         ``tracking_error`` |e| (rad) and ``velocity_error`` |ė| (rad/s) of the state
         passed to the last step (against q_r(s − dt))."""
-        return dict(self._diag)
+        return {"s": self._s0} if self._last is None else error_diagnostics(*self._last)
 
     def residual_features(self, max_speed_rad_s: float) -> FeatureBlock:
         """e, ė against the clock (see :func:`agents.reference_clock.time_indexed_features`)."""

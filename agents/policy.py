@@ -37,7 +37,7 @@ def torque_to_action(tau_nm: FloatArray, torque_limits_nm: FloatArray) -> np.nda
     Every adapter (standalone or residual) converts through this one function, so equal
     torques give bit-identical actions.
     """
-    return np.clip(tau_nm / torque_limits_nm, -1.0, 1.0).astype(np.float32)
+    return np.minimum(np.maximum(tau_nm / torque_limits_nm, -1.0), 1.0).astype(np.float32)
 
 
 class ControllerPolicy:

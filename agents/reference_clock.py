@@ -8,6 +8,7 @@ controller so the bookkeeping (and its checks) exists once.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -50,7 +51,7 @@ class ReferenceClock:
         came first and that ``dt`` (s), the step about to be taken, is positive."""
         if self.s is None:
             raise RuntimeError("call reset() before step()")
-        if not (np.isfinite(dt) and dt > 0.0):
+        if not (math.isfinite(dt) and dt > 0.0):
             raise InvalidConfigError(f"dt must be a positive number of seconds, got {dt!r}")
         q_r, qd_r, qdd_r = self.path.evaluate(self.s)
         return ReferenceErrors(q_r, qd_r, qdd_r, q_r - q, qd_r - qd)

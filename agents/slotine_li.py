@@ -47,7 +47,12 @@ import numpy as np
 
 from agents.base import ControlContext, FeatureBlock, FloatArray
 from agents.gains import Gain, cap_bandwidth, check_gain, gain_vector, rates, rounded
-from agents.reference_clock import ReferenceClock, error_diagnostics, time_indexed_features
+from agents.reference_clock import (
+    ReferenceClock,
+    ReferenceErrors,
+    error_diagnostics,
+    time_indexed_features,
+)
 from ptrack_gym.paths import ReferencePath
 from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
 
@@ -133,7 +138,8 @@ class SlotineLiController:
         self.lam = gain_vector(gains.lambda_1_s, self.n, "lambda_1_s")  # (n,) 1/s
         self.kd = gain_vector(gains.kd_nms_rad, self.n, "kd_nms_rad")  # (n,) N·m·s/rad
         self._zeros = np.zeros(self.n)
-        self._diag: dict[str, float] = {}
+        self._last: tuple[float, ReferenceErrors, FloatArray] | None = None  # (s, errors, q)
+        self._s0 = 0.0
 
     def lyapunov(self, q: FloatArray, qd: FloatArray, s: float) -> float:
         """V = ½ rᵀ M(q) r + eᵀ Λ K_D e (J) at state (q, q̇) against q_r(s)."""
@@ -145,7 +151,7 @@ class SlotineLiController:
     def reset(self, q: FloatArray, qd: FloatArray, s_ref: float) -> None:
         """Start the clock at s = ``s_ref`` (s)."""
         self.clock.reset(s_ref)
-        self._diag = {"s": float(s_ref)}
+        self._last, self._s0 = None, float(s_ref)
 
     def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
         """τ = M q̈_ref + C(q, q̇) q̇_ref + g + K_D r (N·m), shape (n,); then s ← s + dt."""
@@ -159,20 +165,24 @@ class SlotineLiController:
             + christoffel_product(self.model, q, qd, qd_ref)  # C(q, q̇) q̇_ref
             + self.kd * r
         )
-        mass = self.model.mass_matrix(q)  # (n, n)
-        self._diag = {
-            **error_diagnostics(self.clock.advance(dt), err),
-            "sliding_error": float(np.linalg.norm(r)),
-            "lyapunov_j": float(0.5 * r @ mass @ r + e @ (self.lam * self.kd * e)),
-        }
+        self._last = (self.clock.advance(dt), err, np.array(q, dtype=np.float64))
         return tau
 
     def diagnostics(self) -> dict[str, float]:
         """``s``: the clock after the last step (s), equal to the env's ``s_ref`` then;
         for the state passed to the last step (against q_r(s − dt)): ``tracking_error``
         |e| (rad), ``velocity_error`` |ė| (rad/s), ``sliding_error`` |r| (rad/s) and
-        ``lyapunov_j`` V (J)."""
-        return dict(self._diag)
+        ``lyapunov_j`` V (J), computed when asked for."""
+        if self._last is None:
+            return {"s": self._s0}
+        s, err, q = self._last
+        r = err.ed + self.lam * err.e  # (n,) rad/s
+        mass = self.model.mass_matrix(q)  # (n, n)
+        return {
+            **error_diagnostics(s, err),
+            "sliding_error": float(np.linalg.norm(r)),
+            "lyapunov_j": float(0.5 * r @ mass @ r + err.e @ (self.lam * self.kd * err.e)),
+        }
 
     def residual_features(self, max_speed_rad_s: float) -> FeatureBlock:
         """e, ė and r = ė + Λ e against the clock

@@ -1,7 +1,7 @@
 """Gain study of the classical baselines: computed torque, PD + gravity, Slotine–Li.
 
-For each robot, controller and closed-loop bandwidth ω (see :mod:`agents.gains` for how
-ω sets each controller's gains), the env (defaults: physics and control at 1 kHz, the
+For each robot, controller and closed-loop bandwidth ω (each controller's module docstring says
+how ω sets its gains), the env (defaults: physics and control at 1 kHz, the
 robot's default path, exact nominal model, no disturbance) is run from rest, 0.1 rad off
 the path on every joint (signs alternating), from each of a few start phases s₀, and
 scored on the time-indexed error |q_r(s₀ + t) − q| (rad):
@@ -36,17 +36,13 @@ import numpy as np
 
 import ptrack_gym  # noqa: F401  (registers the envs)
 from agents.base import Controller
-from agents.computed_torque import ComputedTorqueController
-from agents.gains import ComputedTorqueGains, PDGravityGains, SlotineLiGains
-from agents.pd_gravity import PDGravityController
+from agents.computed_torque import ComputedTorqueController, ComputedTorqueGains
+from agents.pd_gravity import PDGravityController, PDGravityGains
 from agents.policy import ControllerPolicy
-from agents.slotine_li import SlotineLiController
+from agents.slotine_li import SlotineLiController, SlotineLiGains
+from ptrack_gym.robots import ROBOTS, home_inertia_kgm2
 
-ENV_ID = {
-    "two_link": "ptrack_gym/TwoLinkTrack-v0",
-    "iiwa": "ptrack_gym/IiwaTrack-v0",
-    "panda": "ptrack_gym/PandaTrack-v0",
-}
+ENV_ID = {name: profile.env_id for name, profile in ROBOTS.items()}
 CONTROLLERS = ("computed_torque", "pd_gravity", "slotine_li")
 
 
@@ -54,7 +50,7 @@ CONTROLLERS = ("computed_torque", "pd_gravity", "slotine_li")
 class StudyConfig:
     """What the study runs."""
 
-    robots: tuple[str, ...] = ("two_link", "iiwa", "panda")
+    robots: tuple[str, ...] = tuple(ROBOTS)
     """Robots to study (keys of ``ENV_ID``)."""
     controllers: tuple[str, ...] = CONTROLLERS
     """Controllers to study."""
@@ -91,7 +87,7 @@ def make_controller(name: str, env: gym.Env, omega_rad_s: float) -> Controller:
     Inertia-scaled gains use diag M(q_home) of the env's own model.
     """
     u = env.unwrapped
-    inertia = np.diag(u.model.mass_matrix(np.array(u.robot_spec.home_q_rad)))
+    inertia = home_inertia_kgm2(u.model, u.robot_profile)
     if name == "computed_torque":
         return ComputedTorqueController(
             u.model, u.path, ComputedTorqueGains.from_bandwidth(omega_rad_s)
@@ -166,7 +162,7 @@ def study(cfg: StudyConfig, log: Callable[[str], None] = print) -> list[dict[str
         env = gym.make(ENV_ID[robot])
         try:
             u = env.unwrapped
-            inertia = np.diag(u.model.mass_matrix(np.array(u.robot_spec.home_q_rad)))
+            inertia = home_inertia_kgm2(u.model, u.robot_profile)
             log(f"{robot}: diag M(q_home) = {np.array2string(inertia, precision=6)} kg·m²")
             for name in cfg.controllers:
                 for omega in cfg.omegas_rad_s:

@@ -35,15 +35,11 @@ import pybullet as p
 
 import ptrack_gym
 from ptrack_gym.envs.tracking import TrackingEnv
-from ptrack_gym.robots import ROBOTS, make_robot
+from ptrack_gym.robots import ROBOTS, robot_profile
 from ptrack_gym.sim import BulletSim
 
 #: Registered id of each robot's env.
-ENV_ID = {
-    "two_link": "ptrack_gym/TwoLinkTrack-v0",
-    "iiwa": "ptrack_gym/IiwaTrack-v0",
-    "panda": "ptrack_gym/PandaTrack-v0",
-}
+ENV_ID = {name: profile.env_id for name, profile in ROBOTS.items()}
 
 PHYSICS_HZ = 1000.0
 
@@ -95,7 +91,7 @@ def env_runner(env: gym.Env[np.ndarray, np.ndarray]) -> Callable[[int], None]:
 
 def floor_runner(sim: BulletSim, robot: str, substeps: int) -> Callable[[int], None]:
     """A function doing the raw PyBullet work of ``k`` env steps (see the module docstring)."""
-    spec = make_robot(robot)
+    spec = robot_profile(robot)
     arm = sim.load_arm(spec.urdf_path, spec.joint_names, spec.torque_limits_nm)
     arm.reset_state(np.array(spec.home_q_rad), np.zeros(spec.n))
     cid, body, joints = sim.client_id, arm.body_id, arm.joint_indices
@@ -151,9 +147,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     """Command-line arguments."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=2000, help="env steps per timing")
-    parser.add_argument(
-        "--robots", nargs="+", choices=sorted(ROBOTS), default=["two_link", "iiwa", "panda"]
-    )
+    parser.add_argument("--robots", nargs="+", choices=sorted(ROBOTS), default=list(ROBOTS))
     parser.add_argument("--repeats", type=int, default=5, help="timings per figure (median)")
     parser.add_argument("--warmup", type=int, default=200, help="untimed steps first")
     args = parser.parse_args(argv)

@@ -65,13 +65,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import ptrack_gym  # noqa: F401  (registers the envs)
+from agents import passivity
+from agents.base import ControlContext
 from agents.passivity import PassivityController, PassivityGains
+from agents.passivity_tables import passivity_tables
+from ptrack_gym.robots import ROBOTS, home_inertia_kgm2
 
-ENV_IDS = {
-    "two_link": "ptrack_gym/TwoLinkTrack-v0",
-    "iiwa": "ptrack_gym/IiwaTrack-v0",
-    "panda": "ptrack_gym/PandaTrack-v0",
-}
+ENV_IDS = {name: profile.env_id for name, profile in ROBOTS.items()}
 
 #: Convergence thresholds: path distance (rad) and |ṡ − 1| (1).
 PATH_TOL_RAD = 1e-3
@@ -102,16 +102,9 @@ class GainPoint:
             + (f" sync={self.sync_rate:g}/{self.sync_ratio:g}" if self.sync_rate else "")
         )
 
-    def gains(self, inertia: np.ndarray, mean_m_r: float) -> PassivityGains:
-        return PassivityGains(
-            K=tuple(float(self.omega**2 * max(m, self.m_floor)) for m in inertia),
-            kappa=float(self.omega_s**2 * mean_m_r),
-            R=float(self.rho * mean_m_r),
-            k_pump=float(self.lam / mean_m_r),
-            pump=self.pump,
-            sync_rate=self.sync_rate,
-            sync_ratio=self.sync_ratio,
-        )
+    def gains(self, inertia: np.ndarray, mean_m_r: float, dt_s: float) -> PassivityGains:
+        """The absolute gains (``PassivityGains.from_rates``, rate-aware at ``dt_s``)."""
+        return PassivityGains.from_rates(inertia, mean_m_r, dt_s=dt_s, **asdict(self))
 
 
 def parse_set(text: str) -> GainPoint:
@@ -135,12 +128,11 @@ def grid(name: str, robot: str, centre: GainPoint = CENTRE) -> list[GainPoint]:
     2, 2; ω_s, ρ, λ all × 2; ω, ω_s, ρ × 1/3, 1/2, 1/10). With the default centre these
     are ω ∈ {20, 40}, ω_s ∈ {5, 20}, ρ ∈ {4, 20}, λ ∈ {2, 10}.
     ``full``: a Cartesian product (576 sets; hours of compute — not run for the doc).
-    ``defaults``: the chosen defaults of ``agents.passivity_defaults`` only.
+    ``defaults``: the robot profile's default rates only.
     """
     if name == "defaults":
-        from agents.passivity_defaults import DEFAULT_GAIN_POINTS
-
-        return [GainPoint(**DEFAULT_GAIN_POINTS[robot])]
+        rates = {**passivity.DEFAULT_RATES, **ROBOTS[robot].controller_gains.get("passivity", {})}
+        return [GainPoint(**rates)]
     c = centre
     w, ws, r, lam = c.omega, c.omega_s, c.rho, c.lam
     if name == "quick":
@@ -196,11 +188,8 @@ class EpisodeResult:
 def robot_constants(env: gym.Env) -> tuple[np.ndarray, float]:
     """diag M(q_home) (kg·m²) and the mean of M_r over the path (J)."""
     u = env.unwrapped
-    home = np.array(u.robot_spec.home_q_rad)
-    inertia = np.diag(u.model.mass_matrix(home)).copy()
-    tables = u.tables
-    mean_m_r = float(np.mean([tables(s).m_r for s in tables.grid_s]))
-    return inertia, mean_m_r
+    inertia = home_inertia_kgm2(u.model, u.robot_profile)
+    return inertia, passivity_tables(u.path, u.model).mean_m_r
 
 
 def start_state(env: gym.Env, seed: int, offset_rad: float) -> tuple[float, np.ndarray]:
@@ -233,14 +222,14 @@ def run_episode(
         s0, q0 = start_state(env, seed, offset_rad)
         env.reset(seed=seed, options={"s0": s0, "q": q0, "qd": np.zeros(u.n)})
     elif start == "env":  # the env's own start="rest_near_path" sampling, seeded by reset
-        if u.start_mode != "rest_near_path" or u.start_offset_rad != offset_rad:
+        if u.config.start != "rest_near_path" or u.config.start_offset_rad != offset_rad:
             raise ValueError("start='env' needs an env made with start='rest_near_path'")
         env.reset(seed=seed)
         s0 = u.s0
     else:
         raise ValueError(f"unknown start {start!r}")
     q, qd = u.joint_state()
-    ctrl = PassivityController(u.model, u.tables, gains)
+    ctrl = PassivityController(u.model, passivity_tables(u.path, u.model), gains)
     ctrl.reset(q, qd, s0)
     tau_max = u.torque_limits_nm
     dt = u.dt
@@ -293,7 +282,7 @@ def run_episode(
 
 
 #: Target convergence time per robot (s): the study reports how many seeds have t_c ≤ it.
-TARGET_S = {"two_link": 20.0, "iiwa": 30.0, "panda": 30.0}
+TARGET_S = {name: profile.convergence_target_s for name, profile in ROBOTS.items()}
 
 
 def summarise(rows: list[dict], target_s: float) -> str:
@@ -363,6 +352,7 @@ def main(argv: list[str] | None = None) -> int:
         help="study: q0 = q_r(s0) + U(±offset) from default_rng(seed) (default); env: the "
         "env's own start='rest_near_path' after env.reset(seed=seed)",
     )
+    ap.add_argument("--control-hz", type=float, default=1000.0, help="control rate (Hz)")
     ap.add_argument("--out", type=Path, required=True, help="CSV path")
     args = ap.parse_args(argv)
 
@@ -376,7 +366,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.start == "env"
         else {}
     )
-    env = gym.make(ENV_IDS[args.robot], max_episode_steps=10**9, **env_kwargs)
+    env = gym.make(
+        ENV_IDS[args.robot], max_episode_steps=10**9, control_hz=args.control_hz, **env_kwargs
+    )
     inertia, mean_m_r = robot_constants(env)
     print(
         f"# {args.robot}: diag M(q_home) = {np.round(inertia, 5).tolist()}, "
@@ -392,21 +384,11 @@ def main(argv: list[str] | None = None) -> int:
     with args.out.open("w", newline="") as fh:
         writer = None
         for pt in points:
-            gains = pt.gains(inertia, mean_m_r)
+            gains = pt.gains(inertia, mean_m_r, env.unwrapped.dt)
             if args.grid == "defaults" and not args.set:
-                from agents.passivity_defaults import default_passivity_gains
-
-                stored = default_passivity_gains(args.robot)
-                if not np.allclose(stored.K, gains.K, rtol=1e-12) or not np.allclose(
-                    [stored.kappa, stored.R, stored.k_pump, stored.sync_rate, stored.sync_ratio],
-                    [gains.kappa, gains.R, gains.k_pump, gains.sync_rate, gains.sync_ratio],
-                    rtol=1e-12,
-                ):
-                    raise RuntimeError(
-                        f"stored defaults {stored} differ from the model's {gains}: "
-                        "refresh the constants in agents/passivity_defaults.py"
-                    )
-                gains = stored
+                stored = passivity.default_gains(ControlContext.from_env(env))
+                if stored != gains:
+                    raise RuntimeError(f"the controller's defaults {stored} are not {gains}")
             for seed in range(args.first_seed, args.first_seed + args.seeds):
                 res, _ = run_episode(
                     env, gains, seed, args.duration_s, args.offset_rad, start=args.start

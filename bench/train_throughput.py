@@ -37,7 +37,7 @@ from stable_baselines3 import SAC
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agents.factory import CONTROLLER_NAMES
+from agents.registry import CONTROLLER_NAMES
 from agents.residual import make_residual_env
 from train.train import TrainConfig, validate
 

@@ -26,6 +26,8 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from ptrack_gym.errors import InvalidPathError
+from ptrack_gym.kernels import path as path_kernels
+from ptrack_gym.kernels.projection import nearest as nearest_kernel
 from ptrack_gym.robots.profile import EECircle, FloatArray, RobotProfile
 
 
@@ -82,6 +84,7 @@ class MultiSinePath:
         self._omega_k = self.omega_k[:, None]  # (K, 1)
         self._a_w = self.amplitudes * self._omega_k  # (K, n)
         self._a_w2 = self._a_w * self._omega_k  # (K, n)
+        self._kernel = self.kernel_data()
 
     @property
     def cache_key(self) -> tuple[object, ...]:
@@ -91,16 +94,18 @@ class MultiSinePath:
             self.phases.tobytes(), self.amplitudes.shape, self.period_s,
         )  # fmt: skip
 
+    def kernel_data(self) -> path_kernels.PathKernelData:
+        """This path in the compiled kernels' terms (:mod:`ptrack_gym.kernels.path`)."""
+        return path_kernels.multisine_data(
+            self.center, self.amplitudes, self.phases, self.omega_k, self.period_s
+        )
+
     def evaluate(self, s: float | FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """See :meth:`ReferencePath.evaluate`."""
+        """See :meth:`ReferencePath.evaluate`. A scalar s runs the compiled kernel
+        (:func:`ptrack_gym.kernels.path.eval_path`); an array of s the numpy formula of the
+        class docstring, its readable twin."""
         if np.ndim(s) == 0:
-            arg = self._omega_k * float(s) + self.phases  # (K, n)
-            sin, cos = np.sin(arg), np.cos(arg)
-            return (
-                self.center + np.sum(self.amplitudes * sin, axis=0),
-                np.sum(self._a_w * cos, axis=0),
-                -np.sum(self._a_w2 * sin, axis=0),
-            )
+            return _eval_scalar(self._kernel, float(s), self.n)
         arg = self._omega_k * np.asarray(s, dtype=np.float64)[:, None, None] + self.phases
         sin, cos = np.sin(arg), np.cos(arg)  # (m, K, n)
         return (
@@ -134,6 +139,7 @@ class SplinePath:
         self._q = CubicSpline(self.knots, closed, bc_type="periodic", axis=0)
         self._qd = self._q.derivative(1)
         self._qdd = self._q.derivative(2)
+        self._kernel = self.kernel_data()
 
     @property
     def coefficients(self) -> FloatArray:
@@ -141,10 +147,27 @@ class SplinePath:
         first, in the local variable s − knots[i] (scipy's ``PPoly`` layout)."""
         return self._q.c
 
+    def kernel_data(self) -> path_kernels.PathKernelData:
+        """This path in the compiled kernels' terms (:mod:`ptrack_gym.kernels.path`)."""
+        return path_kernels.piecewise_cubic_data(self.knots, self._q.c, self.period_s)
+
     def evaluate(self, s: float | FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """See :meth:`ReferencePath.evaluate`."""
+        """See :meth:`ReferencePath.evaluate`. A scalar s runs the compiled kernel
+        (:func:`ptrack_gym.kernels.path.eval_path`); an array of s scipy's spline, its
+        readable twin."""
+        if np.ndim(s) == 0:
+            return _eval_scalar(self._kernel, float(s), self.n)
         sm = np.mod(s, self.period_s)
         return self._q(sm), self._qd(sm), self._qdd(sm)
+
+
+def _eval_scalar(
+    data: path_kernels.PathKernelData, s: float, n: int
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """q_r(s), q_r'(s), q_r''(s) of a path's kernel data at one s (fresh arrays)."""
+    q, qd, qdd = np.empty(n), np.empty(n), np.empty(n)
+    path_kernels.eval_path(*data, s, q, qd, qdd)
+    return q, qd, qdd
 
 
 # -- path families per robot -------------------------------------------------------
@@ -379,6 +402,7 @@ class PathProjector:
             self.grid_q[np.arange(-stride, n_grid + stride) % n_grid]
         )
         self.coarse_q = np.ascontiguousarray(self.grid_q[::stride])
+        self.coarse_q_t = np.ascontiguousarray(self.coarse_q.T)  # (n, C), for the kernel
         self.coarse_sq = np.einsum("ij,ij->i", self.coarse_q, self.coarse_q)
         self.hermite = np.ascontiguousarray(np.stack([a, b, c], axis=1))  # (N, 3, n)
         pairs = ((a, a), (a, b), (a, c), (b, b), (b, c), (c, c))
@@ -387,7 +411,23 @@ class PathProjector:
         )  # (N, 6)
 
     def nearest(self, q: FloatArray) -> NearestPoint:
-        """The point of the path nearest ``q``: min over s of |q − q_r(s)| (rad).
+        """The point of the path nearest ``q`` (rad): the compiled twin
+        (:func:`ptrack_gym.kernels.projection.nearest`) of :meth:`nearest_numpy`."""
+        s, d = nearest_kernel(np.asarray(q, dtype=np.float64), *self.kernel_args)
+        return NearestPoint(s=s, distance=d)
+
+    @property
+    def kernel_args(self) -> tuple[object, ...]:
+        """The projector's tables in the order :func:`~ptrack_gym.kernels.projection.nearest`
+        takes them after q."""
+        return (
+            self.grid_s, self.grid_q, self.grid_wrapped, self.coarse_q_t, self.coarse_sq,
+            self.hermite, self.hermite_dots, self.h, self.STRIDE, self.period_s,
+        )  # fmt: skip
+
+    def nearest_numpy(self, q: FloatArray) -> NearestPoint:
+        """The point of the path nearest ``q``: min over s of |q − q_r(s)| (rad) — the
+        readable reference of :meth:`nearest`.
 
         1. A global search over every 8th grid node, then over the 17 nodes around the
            best one, gives the nearest node j.

@@ -263,9 +263,7 @@ class BulletArm:
         """Joint positions (rad) and velocities (rad/s), each of shape (n,)."""
         cid = self.sim._require_connected()
         states = p.getJointStates(self.body_id, self.joint_indices, physicsClientId=cid)
-        q = np.fromiter((s[0] for s in states), dtype=np.float64, count=self.n)
-        qd = np.fromiter((s[1] for s in states), dtype=np.float64, count=self.n)
-        return q, qd
+        return np.array([s[0] for s in states]), np.array([s[1] for s in states])
 
     def clip_torque(self, tau_nm: FloatArray) -> FloatArray:
         """Clip joint torques (N·m) to ±``torque_limits_nm`` (PyBullet does not)."""
@@ -293,6 +291,18 @@ class BulletArm:
             forces=forces_nm,
             physicsClientId=self.sim._require_connected(),
         )
+
+    def run_torque(self, forces_nm: list[float], steps: int) -> tuple[FloatArray, FloatArray]:
+        """Hold the torques ``forces_nm`` (a list of n finite floats within the limits, N·m)
+        for ``steps`` physics steps, re-sent before each, and return the new (q, q̇): the
+        hot path of an undisturbed control step."""
+        cid = self.sim._require_connected()
+        body, joints, mode = self.body_id, self.joint_indices, p.TORQUE_CONTROL
+        for _ in range(steps):
+            p.setJointMotorControlArray(body, joints, mode, forces=forces_nm, physicsClientId=cid)
+            p.stepSimulation(physicsClientId=cid)
+        states = p.getJointStates(body, joints, physicsClientId=cid)
+        return np.array([s[0] for s in states]), np.array([s[1] for s in states])
 
     # -- plant editing (disturbances) ----------------------------------------------
     def set_mass_changes(self, changes: dict[str, tuple[float, float]]) -> None:

@@ -30,7 +30,9 @@ class DisturbanceRunner:
         items: the disturbances, in the order their hooks are applied.
         work_j: ∫ q̇ᵀτ_d since the last reset (J): per sub-step τ_dᵀ(q_{k+1} − q_k), the
             exact work of a torque held over a semi-implicit Euler step.
-        last_torque_nm: τ_d of the last physics sub-step (pushes as JᵀF), shape (n,).
+        last_torque_nm: τ_d of the last physics sub-step (pushes as JᵀF), shape (n,); a
+            new array every control step, never written in place, so it can be handed out
+            (in ``info``) without a copy.
     """
 
     def __init__(self, items: list[Disturbance], n: int) -> None:
@@ -42,6 +44,7 @@ class DisturbanceRunner:
         self._actuators = [d for d in self.items if _overrides(d, "actuate")]
         self._sensors = [d for d in self.items if _overrides(d, "sense")]
         self._editors = [d for d in self.items if _overrides(d, "plant")]
+        self._acts_ever = bool(self._actors or self._actuators)
         self.work_j = 0.0
         self.last_torque_nm = np.zeros(n)
         self._was_reset = False
@@ -57,6 +60,11 @@ class DisturbanceRunner:
         self._was_reset = True
 
     @property
+    def senses(self) -> bool:
+        """Whether a disturbance changes what the sensors report."""
+        return bool(self._sensors)
+
+    @property
     def was_reset(self) -> bool:
         """Whether the disturbances have an episode schedule (``reset`` was called)."""
         return self._was_reset
@@ -67,6 +75,8 @@ class DisturbanceRunner:
 
     def sense(self, q: FloatArray, qd: FloatArray) -> tuple[FloatArray, FloatArray]:
         """What the sensors report for the true (q, q̇)."""
+        if not self._sensors:
+            return q, qd
         for d in self._sensors:
             q, qd = d.sense(q, qd)
         return q, qd
@@ -103,17 +113,18 @@ class DisturbanceRunner:
         commanded torque) + Σ joint torques + Σ Jᵀ(q_k) F for pushes; the plant gets
         τ_cmd + τ_d; the ledger adds τ_dᵀ(q_{k+1} − q_k).
         """
+        if not self.items:  # the common, undisturbed case first
+            self.last_torque_nm = np.zeros(self.n)
+            return arm.run_torque(tau_cmd.tolist(), substeps)
         t0 = first_substep * physics_dt_s
-        self.apply_plant(arm, t0)
+        if self._editors:
+            self.apply_plant(arm, t0)
         t1 = (first_substep + substeps) * physics_dt_s
-        if not self._actuators and not any(d.acts_during(t0, t1) for d in self._actors):
-            forces = tau_cmd.tolist()
-            for _ in range(substeps):
-                arm.apply_torque_list(forces)
-                arm.sim.step()
-            if self.last_torque_nm.any():
-                self.last_torque_nm = np.zeros(self.n)
-            return arm.state()
+        if not self._acts_ever or (
+            not self._actuators and not any(d.acts_during(t0, t1) for d in self._actors)
+        ):
+            self.last_torque_nm = np.zeros(self.n)
+            return arm.run_torque(tau_cmd.tolist(), substeps)
         tau_act = tau_cmd
         for d in self._actuators:
             tau_act = d.actuate(tau_act)

@@ -10,7 +10,6 @@ arguments are validated by :class:`~ptrack_gym.envs.config.EnvConfig`.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
@@ -23,6 +22,7 @@ from ptrack_gym.disturbances import DisturbanceContext, DisturbanceRunner, Distu
 from ptrack_gym.envs.config import EnvConfig
 from ptrack_gym.envs.task import TrackingTask
 from ptrack_gym.errors import InvalidActionError, InvalidConfigError
+from ptrack_gym.kernels.task import clip_action
 from ptrack_gym.paths import PathProjector, ReferencePath, check_joint_limits, make_path
 from ptrack_gym.robots import PinocchioModel
 from ptrack_gym.robots.profile import FloatArray
@@ -211,60 +211,49 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         self.runner.reset(dist_rng, self.disturbance_context)
         self.runner.apply_plant(self.arm, 0.0)
         self._q_meas, self._qd_meas = self.runner.sense(self._q, self._qd)
-        obs, _, info = self._observe(np.zeros(self.n), np.zeros(self.n), unstable=False)
+        obs, _, info = self.task.observe(
+            self._q, self._qd, self._q_meas, self._qd_meas, s0, 0.0, np.zeros(self.n),
+            np.zeros(self.n), self.runner.last_torque_nm, self.runner.work_j,
+        )  # fmt: skip
         return obs, info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if not self.runner.was_reset:
             raise ResetNeeded("call reset() before step()")
-        a = self._validate_action(action)
-        tau = a * self.torque_limits_nm  # within limits: a is validated and clipped
+        a, tau = self._validate_action(action)  # tau = clip(a) ⊙ τ_max, within the limits
         q, qd = self.runner.step(
-            self.arm,
-            tau,
-            self._q,
-            self._qd,
-            self._steps * self.substeps,
-            self.substeps,
+            self.arm, tau, self._q, self._qd, self._steps * self.substeps, self.substeps,
             self.physics_dt,
-        )
+        )  # fmt: skip
         self._steps += 1
-        # max|q̇| is NaN when any q̇ is, and then fails the comparison; a non-finite (or
-        # overflowing) q makes its sum non-finite.
-        unstable = not (
-            float(np.max(np.abs(qd))) <= self.max_speed and math.isfinite(float(q.sum()))
-        )
-        if unstable:
-            q = np.nan_to_num(q, nan=0.0, posinf=0.0, neginf=0.0)
-            qd = np.clip(np.nan_to_num(qd, nan=0.0), -self.max_speed, self.max_speed)
+        # Sensors see the state made finite, should it have blown up (without sensors the
+        # task sanitises the true and the measured state, the same arrays, at once).
+        blown_up = self.runner.senses and not self.task.sanitize(q, qd)
         self._q, self._qd = q, qd
-        self._q_meas, self._qd_meas = self.runner.sense(q, qd)
-        obs, reward, info = self._observe(a, tau, unstable)
+        self._q_meas, self._qd_meas = q_meas, qd_meas = self.runner.sense(q, qd)
+        t = self._steps * self.dt
+        obs, reward, info = self.task.observe(
+            q, qd, q_meas, qd_meas, self._s0 + t, t, a, tau, self.runner.last_torque_nm,
+            self.runner.work_j, blown_up,
+        )  # fmt: skip
+        unstable = info["unstable"]  # a non-finite state or a joint faster than v_max
         return obs, reward, unstable, False, info
 
-    def _observe(
-        self, a: FloatArray, tau: FloatArray, unstable: bool
-    ) -> tuple[np.ndarray, float, dict[str, Any]]:
-        return self.task.observe(
-            self._q, self._qd, self._q_meas, self._qd_meas, self._s0 + self.t, self.t, a, tau,
-            self.runner.last_torque_nm, self.runner.work_j, unstable,
-        )  # fmt: skip
-
-    def _validate_action(self, action: np.ndarray) -> FloatArray:
+    def _validate_action(self, action: np.ndarray) -> tuple[FloatArray, FloatArray]:
+        """(clip(a, −1, 1), the torque it commands (N·m)), or InvalidActionError."""
         a = np.asarray(action)
         if a.dtype.kind not in "fiu":
             raise InvalidActionError(f"action must be real numbers, got dtype {a.dtype}")
         if a.shape != (self.n,):
             raise InvalidActionError(f"action must have shape ({self.n},), got {a.shape}")
-        a = a.astype(np.float64)
-        if not math.isfinite(float(a.sum())):  # one cheap test; the details only on failure
-            bad = ~np.isfinite(a)
-            if np.any(bad):
-                raise InvalidActionError(
-                    f"action has non-finite entries at indices {np.flatnonzero(bad).tolist()}: "
-                    f"{a[bad].tolist()}"
-                )
-        return np.minimum(np.maximum(a, -1.0), 1.0)
+        clipped, tau = np.empty(self.n), np.empty(self.n)  # both end up in the info/reward
+        if clip_action(a, self.torque_limits_nm, clipped, tau) >= 0:
+            a = a.astype(np.float64)
+            idx = np.flatnonzero(~np.isfinite(a))
+            raise InvalidActionError(
+                f"action has non-finite entries at indices {idx.tolist()}: {a[idx].tolist()}"
+            )
+        return clipped, tau
 
     # -- state access for controllers and tests --------------------------------------
     @property

@@ -22,6 +22,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from ptrack_gym.kernels.linalg import symmetrize_upper
 from ptrack_gym.robots.profile import FloatArray, RobotProfile
 
 
@@ -97,8 +98,8 @@ class PinocchioModel:
         key = q.tobytes()
         if key != self._mass_key:
             upper = self._pin.crba(self._model, self._data, q)  # upper triangle filled
-            mass = np.triu(upper)
-            mass += np.triu(upper, 1).T
+            mass = np.empty((self.n, self.n))
+            symmetrize_upper(upper, mass)
             mass.setflags(write=False)
             self._mass, self._mass_key = mass, key
         return self._mass

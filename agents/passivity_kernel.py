@@ -1,0 +1,154 @@
+"""The passivity law compiled: the kernel twin of :meth:`agents.passivity.PassivityController.law`
+(whose docstring, and the module docstring of :mod:`agents.passivity`, state the equations).
+
+:func:`law_step` evaluates the law at (q, q̇) with the controller's state (s, ṡ, σ), writes
+the torque and every quantity of ``LawOutput`` into ``out`` (:data:`OUT` then τ_sync, τ_r⁰
+and f), and integrates the state in place (symplectic Euler). The reference tables are
+interpolated here too (:func:`table_point`, the twin of ``PassivityTables.__call__``).
+``tests/test_kernels.py`` checks every output against the numpy law to 1e-12.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ptrack_gym.kernels import kernel, pack, view1, view3
+from ptrack_gym.kernels.path import cubic_interval
+
+FloatArray = NDArray[np.float64]
+
+#: The scalar outputs, in ``out``'s order (then τ_sync, τ_r⁰, f: n entries each).
+OUT = ("s_dd", "sigma_dot", "energy", "h_plus_w", "h_r", "phi", "psi", "pump_power",
+       "dissipation", "sync_power", "s_tilde", "s_tilde_dot", "path_error")  # fmt: skip
+#: Entries of the gains vector before the stiffness diagonal K (n entries).
+GAINS = ("kappa", "R", "k_pump", "pump_metric", "speed_eps", "sync_rate", "sync_ratio")
+
+
+def law_tables(
+    gains: FloatArray, knots: FloatArray, coeffs: FloatArray, period_s: float
+) -> tuple[FloatArray, NDArray[np.int64]]:
+    """The constant inputs of :func:`law_step`, packed: the gains vector (:data:`GAINS` then
+    K), the tables' knots (N + 1,) and spline coefficients (4, N, 3n + 4), and the period."""
+    return pack([gains, knots, coeffs, np.array([period_s])])
+
+
+@kernel
+def table_point(
+    knots: FloatArray, coeffs: FloatArray, period: float, s: float, out: FloatArray
+) -> None:
+    """The interpolated table row at s (q_r, q_r', τ_r, M_r, M_r', W_r, W_r': 3n + 4) into
+    ``out``. Twin: ``PassivityTables.__call__`` (scipy's periodic cubic spline)."""
+    i, x = cubic_interval(knots, period, s)
+    for c in range(coeffs.shape[2]):
+        out[c] = ((coeffs[0, i, c] * x + coeffs[1, i, c]) * x + coeffs[2, i, c]) * x + coeffs[
+            3, i, c
+        ]
+
+
+@kernel
+def law_step(
+    q: FloatArray,
+    qd: FloatArray,
+    mass: FloatArray,
+    potential: float,
+    dt: float,
+    state: FloatArray,
+    flat: FloatArray,
+    layout: NDArray[np.int64],
+    tau: FloatArray,
+    out: FloatArray,
+) -> None:
+    """τ into ``tau`` and the law's outputs into ``out`` at (q, q̇) with M(q) = ``mass``,
+    U(q) = ``potential`` and the state ``state`` = (s, ṡ, σ); then ṡ ← ṡ + dt s̈,
+    s ← s + dt ṡ, σ ← σ + dt σ̇ in ``state`` (dt = 0: evaluate only)."""
+    n = q.shape[0]
+    gains = view1(flat, layout, 0)
+    knots, coeffs = view1(flat, layout, 1), view3(flat, layout, 2)
+    period = view1(flat, layout, 3)[0]
+    kappa, big_r, k_pump = gains[0], gains[1], gains[2]
+    metric, speed_eps, sync_rate, sync_ratio = gains[3] > 0.5, gains[4], gains[5], gains[6]
+    s, sd, sigma = state[0], state[1], state[2]
+    m = 3 * n + 4
+    ref = np.empty(m)
+    ref_sigma = np.empty(m)
+    table_point(knots, coeffs, period, s, ref)
+    table_point(knots, coeffs, period, sigma, ref_sigma)
+    m_r, m_r_d = ref[3 * n], ref[3 * n + 1]
+    w_r_sigma, w_r_d_sigma = ref_sigma[3 * n + 2], ref_sigma[3 * n + 3]
+    tau_qd = np.empty(n)  # M(q) q̇
+    speed2 = 0.0
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += mass[i, j] * qd[j]
+        tau_qd[i] = acc
+        speed2 += qd[i] * acc
+    speed2 = max(speed2, 0.0)
+    speed = math.sqrt(speed2)
+    sigma_dot = math.sqrt(speed2 / m_r)
+    sync = 0.0
+    if sync_rate > 0.0:
+        x = min(sigma_dot / sync_ratio, 1.0)
+        w = 1.0 - x * x * (3.0 - 2.0 * x)
+        if w > 0.0:
+            num, den = 0.0, 0.0
+            for i in range(n):
+                t_i = 0.0  # (M(q) q_r'(σ))_i
+                for j in range(n):
+                    t_i += mass[i, j] * ref_sigma[n + j]
+                num += (q[i] - ref_sigma[i]) * t_i
+                den += ref_sigma[n + i] * t_i
+            sync = w * sync_rate * (num / den)
+            sigma_dot = sigma_dot + sync
+    s_t, s_td = s - sigma, sd - sigma_dot
+    phi, err2, dphi_qr, qd_tau_r = 0.0, 0.0, 0.0, 0.0
+    for i in range(n):
+        err = q[i] - ref[i]
+        dphi = gains[7 + i] * err
+        phi += err * dphi
+        err2 += err * err
+        dphi_qr += dphi * ref[n + i]
+        qd_tau_r += qd[i] * ref[2 * n + i]
+    phi *= 0.5
+    psi = 0.5 * kappa * s_t**2
+    mu_j = w_r_d_sigma - kappa * s_t - big_r * s_td  # μ √M_r(s) (J)
+    mu = mu_j / math.sqrt(m_r)
+    e_c = -kappa * s_t - big_r * s_td + dphi_qr
+    h_plus_w = 0.5 * speed2 + potential + w_r_sigma
+    h_r = 0.5 * m_r * (sd * sd - 1.0)
+    f_r = -k_pump * h_r * sd
+    s_dd = (-0.5 * m_r_d * (sd * sd - 1.0) + e_c + f_r) / m_r
+    off = len(OUT)
+    pump_power = 0.0
+    for i in range(n):
+        tau_r0 = (speed2 / m_r) * ref[2 * n + i] - (qd_tau_r / m_r) * tau_qd[i]
+        tau_sync = tau_r0 - gains[7 + i] * (q[i] - ref[i])
+        if speed > speed_eps:
+            tau_sync = tau_sync - (mu / speed) * tau_qd[i]
+        f = -k_pump * h_plus_w * (tau_qd[i] if metric else qd[i])
+        tau[i] = tau_sync + f
+        pump_power += qd[i] * f
+        out[off + i] = tau_sync
+        out[off + n + i] = tau_r0
+        out[off + 2 * n + i] = f
+    out[0] = s_dd
+    out[1] = sigma_dot
+    out[2] = h_plus_w + h_r + phi + psi
+    out[3] = h_plus_w
+    out[4] = h_r
+    out[5] = phi
+    out[6] = psi
+    out[7] = pump_power + sd * f_r
+    out[8] = big_r * s_td**2
+    out[9] = mu_j * sync
+    out[10] = s_t
+    out[11] = s_td
+    out[12] = math.sqrt(err2)
+    if dt > 0.0:
+        sd_new = sd + dt * s_dd
+        state[0] = s + dt * sd_new
+        state[1] = sd_new
+        state[2] = sigma + dt * sigma_dot

@@ -1,0 +1,22 @@
+"""Small dense helpers."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ptrack_gym.kernels import kernel
+
+FloatArray = NDArray[np.float64]
+
+
+@kernel
+def symmetrize_upper(upper: FloatArray, out: FloatArray) -> None:
+    """out = the symmetric matrix whose upper triangle is ``upper``'s (CRBA fills only the
+    upper triangle of M). Twin: ``np.triu(upper) + np.triu(upper, 1).T``."""
+    n = upper.shape[0]
+    for i in range(n):
+        out[i, i] = upper[i, i]
+        for j in range(i + 1, n):
+            out[i, j] = upper[i, j]
+            out[j, i] = upper[i, j]
