@@ -41,12 +41,13 @@ def speed_ratio(
     speed relative to the path's nominal speed at the nearest path point — the passivity
     controller's σ̇, defined for any run. 1 means moving at the reference's pace."""
     q_r, qd_r, _ = path.evaluate(np.asarray(s_star, dtype=np.float64))
-    out = np.empty(len(q))
-    for k in range(len(q)):
-        speed2 = float(qd[k] @ model.mass_matrix(q[k]) @ qd[k])
-        m_r = float(qd_r[k] @ model.mass_matrix(q_r[k]) @ qd_r[k])
-        out[k] = np.sqrt(max(speed2, 0.0) / m_r)
-    return out
+    norms2 = getattr(model, "metric_norms2", None)  # a batch evaluation, where the model has one
+    if norms2 is not None:
+        speed2, m_r = norms2(q, qd), norms2(q_r, qd_r)
+    else:
+        speed2 = np.array([qk @ model.mass_matrix(pk) @ qk for pk, qk in zip(q, qd, strict=True)])
+        m_r = np.array([vk @ model.mass_matrix(pk) @ vk for pk, vk in zip(q_r, qd_r, strict=True)])
+    return np.sqrt(np.maximum(speed2, 0.0) / m_r)
 
 
 def rms(x: FloatArray) -> float:

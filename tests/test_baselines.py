@@ -14,7 +14,6 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
-from stable_baselines3.common.evaluation import evaluate_policy
 
 import ptrack_gym  # noqa: F401  (registers the environment ids)
 from agents import computed_torque, pd_gravity, slotine_li
@@ -267,9 +266,13 @@ def test_output_is_finite_for_random_finite_states(
 def test_runs_a_full_episode_through_sb3_evaluate_policy(
     name: str, robot: str, envs: dict[str, gym.Env[Any, Any]]
 ) -> None:
+    evaluation = pytest.importorskip(
+        "stable_baselines3.common.evaluation",
+        reason="the optional 'train' extra (SB3, torch) is not installed",
+    )
     env = envs[robot]
     policy = ControllerPolicy(env, make_baseline(name, env))
-    rewards, lengths = evaluate_policy(
+    rewards, lengths = evaluation.evaluate_policy(
         policy, env, n_eval_episodes=1, return_episode_rewards=True, warn=False
     )
     assert lengths == [300]

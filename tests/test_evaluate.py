@@ -201,6 +201,9 @@ def test_paired_controllers_meet_identical_disturbances() -> None:
 def test_a_trained_residual_model_is_evaluated_like_a_controller(tmp_path) -> None:
     """``sb3:<run folder>`` runs a model of ``train.train`` in the sweep (a 200-step SAC
     residual on passivity: what it learned is irrelevant here, the plumbing is not)."""
+    pytest.importorskip(
+        "stable_baselines3", reason="the optional 'train' extra (SB3, torch) is not installed"
+    )
     from train.train import main as train_main
 
     run_dir = tmp_path / "sac_res"

@@ -217,3 +217,16 @@ def test_law_kernel_equals_the_numpy_law(robot: str, gains: PassivityGains) -> N
         for field in expected._fields:
             assert rel(getattr(out, field), getattr(expected, field)) <= TOL, field
         assert rel(ctrl._state, twin._state) <= TOL
+
+
+@pytest.mark.parametrize("robot", sorted(ROBOTS))
+def test_batch_metric_equals_the_mass_matrix_quadratic_form(robot: str) -> None:
+    """``PinocchioModel.metric_norms2`` (CRBA per row + the compiled quadratic form of its
+    upper triangle) against v ᵀ M(q) v with the full matrix."""
+    profile = robot_profile(robot)
+    model = PinocchioModel(profile)
+    rng = np.random.default_rng(7)
+    q = profile.home() + rng.normal(0.0, 0.3, (40, profile.n))
+    v = rng.normal(0.0, 1.0, (40, profile.n))
+    expected = np.array([vk @ model.mass_matrix(qk) @ vk for qk, vk in zip(q, v, strict=True)])
+    assert rel(model.metric_norms2(q, v), expected) <= TOL

@@ -8,8 +8,6 @@ import numpy as np
 import pytest
 from passivity_energy import run_passivity_energy
 from scipy.integrate import solve_ivp
-from stable_baselines3.common.evaluation import evaluate_policy
-from stable_baselines3.common.monitor import Monitor
 
 import ptrack_gym  # noqa: F401  (registers the envs)
 from agents.passivity import PassivityController, PassivityGains
@@ -155,6 +153,12 @@ def test_paper_pump_uses_qdot_direction() -> None:
 
 
 def test_policy_adapter_runs_an_episode_through_evaluate_policy() -> None:
+    pytest.importorskip(
+        "stable_baselines3", reason="the optional 'train' extra (SB3, torch) is not installed"
+    )
+    from stable_baselines3.common.evaluation import evaluate_policy
+    from stable_baselines3.common.monitor import Monitor
+
     env = Monitor(gym.make("ptrack_gym/TwoLinkTrack-v0", max_episode_steps=300))
     u = env.unwrapped
     ctrl = PassivityController(

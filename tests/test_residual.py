@@ -9,7 +9,6 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
-from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import ptrack_gym  # noqa: F401  (registers the environment ids)
 from agents.base import Controller
@@ -68,11 +67,15 @@ def test_zero_residual_is_bit_identical_to_the_standalone_controller(
 
 @pytest.mark.parametrize("base", ["passivity", "computed_torque"])
 def test_residual_env_passes_gymnasium_and_sb3_checkers(make_env, base: str) -> None:
+    env_checker = pytest.importorskip(
+        "stable_baselines3.common.env_checker",
+        reason="the optional 'train' extra (SB3, torch) is not installed",
+    )
     env = make_env.track(make_residual_env(TWO_LINK, base, **SHORT))
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*different from the unwrapped.*")
         gym_check_env(env, skip_render_check=True)
-    sb3_check_env(env)
+    env_checker.check_env(env)
 
 
 def test_bad_actions_raise_value_error_and_step_nothing(make_env) -> None:

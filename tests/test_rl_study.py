@@ -3,11 +3,16 @@ study (tiny runs: what they learned is irrelevant here, the plumbing is not)."""
 
 from __future__ import annotations
 
+import pytest
+
+pytest.importorskip(
+    "stable_baselines3", reason="the optional 'train' extra (SB3, torch) is not installed"
+)
+
 import shutil
 from pathlib import Path
 
 import pandas as pd
-import pytest
 import yaml
 
 from ptrack_gym.errors import InvalidConfigError

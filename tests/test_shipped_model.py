@@ -3,6 +3,12 @@
 
 from __future__ import annotations
 
+import pytest
+
+pytest.importorskip(
+    "stable_baselines3", reason="the optional 'train' extra (SB3, torch) is not installed"
+)
+
 from pathlib import Path
 
 import numpy as np

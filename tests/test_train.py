@@ -7,10 +7,15 @@ whole file stays well under a minute on a loaded 2-core machine.
 
 from __future__ import annotations
 
+import pytest
+
+pytest.importorskip(
+    "stable_baselines3", reason="the optional 'train' extra (SB3, torch) is not installed"
+)
+
 from pathlib import Path
 
 import numpy as np
-import pytest
 import torch
 import yaml
 from stable_baselines3 import PPO, SAC, TD3

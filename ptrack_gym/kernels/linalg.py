@@ -20,3 +20,15 @@ def symmetrize_upper(upper: FloatArray, out: FloatArray) -> None:
         for j in range(i + 1, n):
             out[i, j] = upper[i, j]
             out[j, i] = upper[i, j]
+
+
+@kernel
+def quadratic_form_upper(upper: FloatArray, v: FloatArray) -> float:
+    """vᵀ M v for the symmetric M whose upper triangle is ``upper``. Twin: ``v @ M @ v``."""
+    n = v.shape[0]
+    acc = 0.0
+    for i in range(n):
+        acc += upper[i, i] * v[i] * v[i]
+        for j in range(i + 1, n):
+            acc += 2.0 * upper[i, j] * v[i] * v[j]
+    return acc

@@ -22,7 +22,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from ptrack_gym.kernels.linalg import symmetrize_upper
+from ptrack_gym.kernels.linalg import quadratic_form_upper, symmetrize_upper
 from ptrack_gym.robots.profile import FloatArray, RobotProfile
 
 
@@ -146,6 +146,19 @@ class PinocchioModel:
         """½ q̇ᵀ M(q) q̇ (J)."""
         qd = np.asarray(qd, dtype=np.float64)
         return 0.5 * float(qd @ self.mass_matrix(q) @ qd)
+
+    def metric_norms2(self, q: FloatArray, v: FloatArray) -> FloatArray:
+        """v_kᵀ M(q_k) v_k for every row k of q, v (T, n) (kg·m²·(rad/s)² = J·2 for v = q̇):
+        one CRBA per row, bypassing the one-entry cache (for whole trajectories)."""
+        q = np.ascontiguousarray(q, dtype=np.float64)
+        v = np.ascontiguousarray(v, dtype=np.float64)
+        pin, model, data = self._pin, self._model, self._data
+        return np.array(
+            [
+                quadratic_form_upper(pin.crba(model, data, qk), vk)
+                for qk, vk in zip(q, v, strict=True)
+            ]
+        )
 
     def close(self) -> None:
         """Nothing to release (for symmetry with :class:`BulletModel`)."""

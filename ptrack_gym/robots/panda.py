@@ -118,9 +118,11 @@ PROFILE = RobotProfile(
     default_control_hz=500.0,
     controller_gains={
         "passivity": {"omega": 10.0, "omega_s": 20.0, "rho": 10.0, "lam": 2.0, "m_floor": 0.1},
-        "computed_torque": {"omega": 7.0},
-        "pd_gravity": {"omega": 7.0},
-        "slotine_li": {"omega": 7.0},
+        # bench/baseline_gain_study.py with the franka_ros inertials: the largest ω of the
+        # sweep with no clipped torque from rest 0.1 rad off the path (ω = 20 clips).
+        "computed_torque": {"omega": 14.0},
+        "pd_gravity": {"omega": 14.0},
+        "slotine_li": {"omega": 14.0},
     },
     convergence_target_s=30.0,
     camera_target_m=(0.0, 0.0, 0.5),
