@@ -237,6 +237,11 @@ class BulletArm:
             )
         return values
 
+    @property
+    def link_names(self) -> tuple[str, ...]:
+        """Names of the arm's links (the fixed base excluded)."""
+        return tuple(self._link_index)
+
     def link_index(self, link_name: str) -> int:
         """PyBullet link index of the link called ``link_name``."""
         try:

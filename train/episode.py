@@ -151,24 +151,20 @@ def _first_impulse_end(schedule: list[dict[str, Any]]) -> float | None:
     return min(ends) if ends else None
 
 
-def run_episode(
-    task: Task, settings: EpisodeSettings, keep_trace: bool = False
-) -> tuple[dict[str, Any], dict[str, np.ndarray] | None]:
-    """Run ``task`` and return its CSV row (keys + metrics + wall time) and, with
-    ``keep_trace``, the time series for the example-episode plots."""
-    wall0 = time.perf_counter()
-    policy: Predictor
-    if task.controller.startswith(SB3_PREFIX):
-        env, policy = _sb3_env_and_policy(task.controller, settings, task.disturbance, task.level)
-    else:
-        env = _env(settings, task.disturbance, task.level)
-        policy = ControllerPolicy(env, make_controller(task.controller, env))
+def rollout(
+    env: gym.Env[Any, Any], policy: Predictor, reset_seed: int, keep_trace: bool = False
+) -> tuple[EpisodeRecord, np.ndarray | None]:
+    """One episode of ``policy`` on ``env`` from ``env.reset(seed=reset_seed)`` until it
+    terminates or is truncated: the :class:`EpisodeRecord` and, with ``keep_trace``, the
+    policy's storage terms per step (the passivity controller's H + W_r(σ), H_r, φ, ψ, E;
+    NaN for other policies). The one episode loop of the package, for anything with SB3's
+    ``predict``."""
     u = env.unwrapped
     rows: dict[str, list[Any]] = {
         k: [] for k in ("t", "q", "qd", "s_ref", "tau", "d", "path_s", "energy")
     }
     unstable, info = False, {}
-    obs, _ = env.reset(seed=task.reset_seed)
+    obs, _ = env.reset(seed=reset_seed)
     episode_start = np.ones(1, dtype=bool)
     while True:
         action, _ = policy.predict(obs, episode_start=episode_start, deterministic=True)
@@ -182,7 +178,7 @@ def run_episode(
         rows["tau"].append(info["tau_nm"])
         rows["d"].append(info["path_distance"])
         rows["path_s"].append(info["path_s"])
-        if keep_trace:  # the passivity controller's storage terms (NaN for the others)
+        if keep_trace:
             diag: dict[str, float] = getattr(policy, "last_diagnostics", {})
             rows["energy"].append(
                 [diag.get(k, np.nan) for k in ("h_plus_w", "h_r", "phi", "psi", "energy")]
@@ -204,6 +200,23 @@ def run_episode(
         path_distance=np.array(rows["d"]),
         path_s=np.array(rows["path_s"]),
     )
+    return record, (np.array(rows["energy"]) if keep_trace else None)
+
+
+def run_episode(
+    task: Task, settings: EpisodeSettings, keep_trace: bool = False
+) -> tuple[dict[str, Any], dict[str, np.ndarray] | None]:
+    """Run ``task`` and return its CSV row (keys + metrics + wall time) and, with
+    ``keep_trace``, the time series for the example-episode plots."""
+    wall0 = time.perf_counter()
+    policy: Predictor
+    if task.controller.startswith(SB3_PREFIX):
+        env, policy = _sb3_env_and_policy(task.controller, settings, task.disturbance, task.level)
+    else:
+        env = _env(settings, task.disturbance, task.level)
+        policy = ControllerPolicy(env, make_controller(task.controller, env))
+    u = env.unwrapped
+    record, storage = rollout(env, policy, task.reset_seed, keep_trace)
     metrics = episode_metrics(
         record,
         u.model,
@@ -220,15 +233,16 @@ def run_episode(
     row["level"] = f"{task.level:g}"
     trace = None
     if keep_trace:
+        assert storage is not None
         trace = {
             "t_s": record.t_s,
             "q": record.q,
             "q_ref": u.path.evaluate(record.s_ref)[0],
-            "path_distance": np.array(rows["d"]),
+            "path_distance": record.path_distance,
             # H+W_r(σ), H_r, φ, ψ, E (passivity), and the arm's H(q, q̇) by the nominal model
             "energy": np.column_stack(
                 [
-                    np.array(rows["energy"]),
+                    storage,
                     [
                         u.model.kinetic_energy(q, qd) + u.model.potential(q)
                         for q, qd in zip(record.q, record.qd, strict=True)

@@ -23,7 +23,8 @@ adding a disturbance family is writing one class.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
@@ -50,6 +51,8 @@ class DisturbanceContext:
         home_mass_matrix: nominal M at the home pose, (n, n), for energy budgets.
         ee_jacobian_home: translational Jacobian of the ee link's centre of mass at home, (3, n).
         mean_path_speed_rad_s: mean |q_r'| along the reference (rad/s), for energy budgets.
+        link_jacobians_home: every link's centre-of-mass Jacobian at home, (3, n), by name.
+        mass_matrix: the nominal model's M(q) (kg·m²), for sizing by the state at onset.
     """
 
     n: int
@@ -61,6 +64,8 @@ class DisturbanceContext:
     home_mass_matrix: FloatArray
     ee_jacobian_home: FloatArray
     mean_path_speed_rad_s: float
+    link_jacobians_home: Mapping[str, FloatArray] = field(default_factory=dict)
+    mass_matrix: Callable[[FloatArray], FloatArray] | None = None
 
 
 @dataclass(frozen=True)
@@ -85,8 +90,16 @@ class Disturbance:
                 raise TypeError(f"two disturbance families are called {cls.name!r}")
             DISTURBANCES[cls.name] = cls
 
+    def validate(self, ctx: DisturbanceContext) -> None:
+        """Raise :class:`InvalidConfigError` if this disturbance cannot act on the env of
+        ``ctx`` (e.g. a link it names does not exist); called once, at env construction."""
+
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         """Draw this episode's schedule."""
+
+    def set_context(self, ctx: DisturbanceContext) -> None:
+        """Re-attach what ``reset`` keeps of the context and does not pickle (a model's
+        method), after an env is unpickled; a no-op for most families."""
 
     def acts_during(self, t0_s: float, t1_s: float) -> bool:
         """Whether ``joint_torque`` or ``wrench`` may be non-zero in [t0, t1) (s).
@@ -125,6 +138,23 @@ def unit_vector(rng: np.random.Generator, n: int) -> FloatArray:
     """A uniformly random unit vector of R^n."""
     v = rng.standard_normal(n)
     return v / np.linalg.norm(v)
+
+
+def fixed_direction(value: Any, size: int, name: str) -> FloatArray:
+    """A given direction as a unit vector of R^size, or :class:`InvalidConfigError`."""
+    v = np.asarray(value, dtype=np.float64)
+    norm = float(np.linalg.norm(v)) if v.shape == (size,) else 0.0
+    if not (np.isfinite(norm) and norm > 0.0):
+        raise InvalidConfigError(f"{name} must be {size} finite numbers, not all 0, got {value!r}")
+    return v / norm
+
+
+def check_link(link: str | None, ctx: DisturbanceContext, family: str) -> None:
+    """Raise :class:`InvalidConfigError` for a link the robot does not have."""
+    if link is not None and ctx.link_jacobians_home and link not in ctx.link_jacobians_home:
+        raise InvalidConfigError(
+            f"{family}: the robot has no link {link!r}; known: {sorted(ctx.link_jacobians_home)}"
+        )
 
 
 def draw(rng: np.random.Generator, value: float | tuple[float, float]) -> float:

@@ -19,8 +19,10 @@ from ptrack_gym.disturbances.base import (
     DisturbanceContext,
     FloatArray,
     MassChange,
+    check_link,
     check_non_negative,
     draw,
+    fixed_direction,
     unit_vector,
 )
 from ptrack_gym.errors import InvalidConfigError
@@ -43,6 +45,15 @@ class ImpulseTorque(Disturbance):
     The torque acts on the physics sub-steps that start inside [onset, onset + duration):
     choose ``duration_s`` as a multiple of the physics step, or the delivered momentum is
     rounded to whole sub-steps.
+
+    ``direction`` fixes v (or u) instead of drawing it (a unit vector is made of it), so a
+    found worst case replays exactly. ``energy_mode``: ``"home"`` (above: the budget is the
+    energy the impulse would give the arm *at rest at home*; on a moving arm the work it
+    really does, ``info["disturbance_work_j"]``, differs — 0.35 to 3.6 J for 2 J was seen)
+    or ``"delivered"``: c is chosen at the onset, from the arm's (q, q̇) and the nominal
+    M(q), so that the impulse's momentum p = c·M(q_home)v changes the arm's kinetic energy
+    by energy_j: pᵀq̇ + ½ pᵀM(q)⁻¹p = energy_j (the work of an instantaneous impulse; the
+    50-ms one delivers it up to what gravity and the controller do meanwhile).
     """
 
     name: ClassVar[str] = "impulse"
@@ -51,21 +62,44 @@ class ImpulseTorque(Disturbance):
     onset_s: float | tuple[float, float] = (1.0, 4.0)
     accel_rad_s2: float | None = None
     energy_j: float | None = None
+    direction: tuple[float, ...] | None = None
+    energy_mode: str = "home"
 
     def __post_init__(self) -> None:
         check_non_negative(self.fraction, "fraction")
-        if not self.duration_s > 0:
+        check_non_negative(self.onset_s, "onset_s")
+        if not (isinstance(self.duration_s, (int, float)) and self.duration_s > 0):
             raise InvalidConfigError(f"duration_s must be > 0, got {self.duration_s!r}")
         if self.energy_j is not None:
             check_non_negative(self.energy_j, "energy_j")
+        if self.energy_mode not in ("home", "delivered"):
+            raise InvalidConfigError(
+                f"energy_mode must be 'home' or 'delivered', got {self.energy_mode!r}"
+            )
+        if self.energy_mode == "delivered" and self.energy_j is None:
+            raise InvalidConfigError("energy_mode='delivered' needs energy_j")
+
+    def validate(self, ctx: DisturbanceContext) -> None:
+        if self.direction is not None:
+            fixed_direction(self.direction, ctx.n, "direction")
+        if self.energy_mode == "delivered" and ctx.mass_matrix is None:
+            raise InvalidConfigError("energy_mode='delivered' needs the model's mass matrix")
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._onset = draw(rng, self.onset_s)
-        u = unit_vector(rng, ctx.n)
+        if self.direction is not None:
+            u = fixed_direction(self.direction, ctx.n, "direction")
+        else:
+            u = unit_vector(rng, ctx.n)
+        self._sized = True
         if self.energy_j is not None:
             mass = ctx.home_mass_matrix
+            self._momentum_dir = mass @ u  # a: p = c·a
             c = np.sqrt(2.0 * self.energy_j / float(u @ mass @ u))
-            self._tau = c * (mass @ u) / self.duration_s
+            self._tau = c * self._momentum_dir / self.duration_s
+            if self.energy_mode == "delivered":
+                self._mass_matrix = ctx.mass_matrix
+                self._sized = False  # c is chosen at the onset, from the arm's state
         else:
             self._tau = _torque_vector(self.fraction, self.accel_rad_s2, u, ctx)
 
@@ -74,11 +108,37 @@ class ImpulseTorque(Disturbance):
 
     def joint_torque(self, t_s: float, q: FloatArray, qd: FloatArray) -> FloatArray | None:
         if self._onset <= t_s < self._onset + self.duration_s:
+            if not self._sized:
+                self._tau = self._delivered_torque(q, qd)
+                self._sized = True
             return self._tau
         return None
 
+    def _delivered_torque(self, q: FloatArray, qd: FloatArray) -> FloatArray:
+        """τ = c·a / T with c > 0 the root of c aᵀq̇ + ½c² aᵀM(q)⁻¹a = energy_j."""
+        a = self._momentum_dir
+        quad = float(a @ np.linalg.solve(self._mass_matrix(q), a))  # aᵀM⁻¹a > 0
+        lin = float(a @ qd)
+        c = (-lin + np.sqrt(lin * lin + 2.0 * quad * float(self.energy_j))) / quad
+        return c * a / self.duration_s
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state.pop("_mass_matrix", None)  # a model method: the env restores it (set_context)
+        return state
+
+    def set_context(self, ctx: DisturbanceContext) -> None:
+        """Re-attach what ``reset`` took from the context (after unpickling)."""
+        if self.energy_mode == "delivered":
+            self._mass_matrix = ctx.mass_matrix
+
     def schedule(self) -> dict[str, Any]:
-        return {"onset_s": self._onset, "tau_nm": self._tau.copy(), "duration_s": self.duration_s}
+        return {
+            "onset_s": self._onset,
+            "tau_nm": self._tau.copy(),
+            "duration_s": self.duration_s,
+            "sized": self._sized,
+        }
 
 
 def _torque_vector(
@@ -140,13 +200,14 @@ class PeriodicTorque(Disturbance):
     """τ_d,j(t) = A_j sin(2π f t + φ_j), A = a·τ_max ⊙ |u| (or |M(q_home) α|u|| with
     ``accel_rad_s2``), f drawn once per episode in ``frequency_hz``, phases φ_j uniform in
     [0, 2π) once per episode (never redrawn). With ``energy_j``: |A| = energy_j /
-    (mean|q_r'| · horizon)."""
+    (mean|q_r'| · horizon). ``direction`` fixes u (its absolute values weigh the joints)."""
 
     name: ClassVar[str] = "periodic"
     fraction: float = 0.1
     frequency_hz: float | tuple[float, float] = (0.5, 2.0)
     accel_rad_s2: float | None = None
     energy_j: float | None = None
+    direction: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         check_non_negative(self.fraction, "fraction")
@@ -154,11 +215,16 @@ class PeriodicTorque(Disturbance):
         if self.energy_j is not None:
             check_non_negative(self.energy_j, "energy_j")
 
+    def validate(self, ctx: DisturbanceContext) -> None:
+        if self.direction is not None:
+            fixed_direction(self.direction, ctx.n, "direction")
+
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._freq = draw(rng, self.frequency_hz)
-        self._amp = np.abs(
-            _torque_vector(self.fraction, self.accel_rad_s2, np.abs(unit_vector(rng, ctx.n)), ctx)
-        )
+        u = unit_vector(rng, ctx.n)  # drawn always: the phases' draws stay where they were
+        if self.direction is not None:
+            u = fixed_direction(self.direction, ctx.n, "direction")
+        self._amp = np.abs(_torque_vector(self.fraction, self.accel_rad_s2, np.abs(u), ctx))
         self._phase = rng.uniform(0.0, 2.0 * np.pi, ctx.n)
         if self.energy_j is not None:
             self._amp = _unit_like(self._amp) * _sustained_amplitude(ctx, self.energy_j)
@@ -218,7 +284,8 @@ class Push(Disturbance):
     """A force on a link (default: the end effector) for ``duration_s`` from a random onset,
     in a random world direction, applied at the link's centre of mass each physics
     sub-step (PyBullet clears external forces after every step). With ``energy_j``, the
-    force is scaled so its momentum Jᵀ(F·T) gives an arm at rest at home that energy."""
+    force is scaled so its momentum Jᵀ(F·T) (J the link's centre-of-mass Jacobian at home)
+    gives an arm at rest at home that energy. ``direction`` fixes the world direction."""
 
     name: ClassVar[str] = "push"
     force_n: float = 20.0
@@ -226,21 +293,31 @@ class Push(Disturbance):
     onset_s: float | tuple[float, float] = (1.0, 4.0)
     link: str | None = None
     energy_j: float | None = None
+    direction: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         check_non_negative(self.force_n, "force_n")
-        if not self.duration_s > 0:
+        check_non_negative(self.onset_s, "onset_s")
+        if not (isinstance(self.duration_s, (int, float)) and self.duration_s > 0):
             raise InvalidConfigError(f"duration_s must be > 0, got {self.duration_s!r}")
         if self.energy_j is not None:
             check_non_negative(self.energy_j, "energy_j")
+        if self.direction is not None:
+            fixed_direction(self.direction, 3, "direction")
+
+    def validate(self, ctx: DisturbanceContext) -> None:
+        check_link(self.link, ctx, "push")
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._onset = draw(rng, self.onset_s)
         self._link = self.link or ctx.ee_link
         direction = unit_vector(rng, 3)
+        if self.direction is not None:
+            direction = fixed_direction(self.direction, 3, "direction")
         self._force = self.force_n * direction
         if self.energy_j is not None:
-            p = ctx.ee_jacobian_home.T @ direction * self.duration_s
+            jac = ctx.link_jacobians_home.get(self._link, ctx.ee_jacobian_home)
+            p = jac.T @ direction * self.duration_s
             self._force = direction * _impulse_energy_scale(p, ctx.home_mass_matrix, self.energy_j)
 
     def acts_during(self, t0_s: float, t1_s: float) -> bool:
@@ -275,6 +352,9 @@ class Payload(Disturbance):
 
     def __post_init__(self) -> None:
         check_non_negative(self.mass_kg, "mass_kg")
+
+    def validate(self, ctx: DisturbanceContext) -> None:
+        check_link(self.link, ctx, "payload")
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._link = self.link or ctx.ee_link
@@ -312,6 +392,10 @@ class Mismatch(Disturbance):
         check_non_negative(self.mass_scale, "mass_scale")
         check_non_negative(self.damping_per_s, "damping_per_s")
         check_non_negative(self.friction_rad_s2, "friction_rad_s2")
+
+    def validate(self, ctx: DisturbanceContext) -> None:
+        for link in self.links:
+            check_link(link, ctx, "mismatch")
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._scales = {link: draw(rng, self.mass_scale) for link in self.links}

@@ -49,6 +49,17 @@ class DisturbanceRunner:
         self.last_torque_nm = np.zeros(n)
         self._was_reset = False
 
+    def validate(self, ctx: DisturbanceContext) -> None:
+        """Check every disturbance against the env (links, directions); raises
+        :class:`~ptrack_gym.errors.InvalidConfigError`."""
+        for d in self.items:
+            d.validate(ctx)
+
+    def set_context(self, ctx: DisturbanceContext) -> None:
+        """Re-attach the context after unpickling (see ``Disturbance.set_context``)."""
+        for d in self.items:
+            d.set_context(ctx)
+
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         """Reset every disturbance with its own child stream of ``rng`` (in list order) and
         zero the ledger."""

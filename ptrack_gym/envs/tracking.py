@@ -172,7 +172,12 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
                 mean_path_speed_rad_s=float(
                     np.mean(np.linalg.norm(self.path.evaluate(self.projector.grid_s)[1], axis=1))
                 ),
+                link_jacobians_home={
+                    link: self.arm.com_jacobian(link, home) for link in self.arm.link_names
+                },
+                mass_matrix=self.model.mass_matrix,
             )
+            self.runner.validate(self.disturbance_context)
         except BaseException:
             self.close()  # no PyBullet client outlives a failed construction
             raise
@@ -314,5 +319,6 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         self.arm.reset_state(q, qd)
         self._q, self._qd = self.arm.state()
         self.runner = state["runner"]
+        self.runner.set_context(self.disturbance_context)
         if self.runner.was_reset:
             self.runner.apply_plant(self.arm, self.t)
