@@ -13,6 +13,7 @@ capped at α / dt (:func:`agents.gains.cap_bandwidth`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from agents.base import ControlContext, FeatureBlock, FloatArray
@@ -53,10 +54,16 @@ class ComputedTorqueGains:
         return cls(kp_1_s2=omega_rad_s**2, kd_1_s=2.0 * zeta * omega_rad_s)
 
 
-def default_gains(ctx: ControlContext) -> ComputedTorqueGains:
-    """The robot's default gains at the context's control rate (module docstring)."""
-    r = rates(DEFAULT_RATES, ctx.profile.controller_gains.get(NAME), NAME)
+def gains_from_rates(ctx: ControlContext, given: Mapping[str, float] | None) -> ComputedTorqueGains:
+    """Absolute gains from rates (``DEFAULT_RATES`` updated by ``given``) at the context's
+    control rate (module docstring)."""
+    r = rates(DEFAULT_RATES, given, NAME)
     return ComputedTorqueGains.from_bandwidth(cap_bandwidth(r["omega"], ctx.dt_s), r["zeta"])
+
+
+def default_gains(ctx: ControlContext) -> ComputedTorqueGains:
+    """The robot's default gains at the context's control rate: the profile's rates."""
+    return gains_from_rates(ctx, ctx.profile.controller_gains.get(NAME))
 
 
 class ComputedTorqueController:
@@ -115,7 +122,12 @@ class ComputedTorqueController:
 
 
 def build(
-    ctx: ControlContext, gains: ComputedTorqueGains | None = None
+    ctx: ControlContext, gains: ComputedTorqueGains | Mapping[str, float] | None = None
 ) -> ComputedTorqueController:
-    """The controller for a context, with its default gains unless ``gains`` is given."""
-    return ComputedTorqueController(ctx.model, ctx.path, gains or default_gains(ctx))
+    """The controller for a context: its default gains, the given gains, or gains from the
+    given rates (a mapping, e.g. tuned ones)."""
+    if gains is None:
+        gains = default_gains(ctx)
+    elif isinstance(gains, Mapping):
+        gains = gains_from_rates(ctx, gains)
+    return ComputedTorqueController(ctx.model, ctx.path, gains)

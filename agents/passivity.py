@@ -53,6 +53,7 @@ chose the rates is ``docs/passivity_gain_study.md``.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -76,7 +77,11 @@ DEFAULT_RATES: dict[str, Any] = {
     "m_floor": 0.1,
     "sync_rate": 0.0,
     "sync_ratio": 0.5,
+    "saturation_aware": True,
 }
+#: The paper's law exactly (the ``passivity_paper`` controller): no re-synchronisation of σ,
+#: no saturation-aware reference torque — whatever a robot's defaults or tuned rates say.
+PAPER_LAW = {"sync_rate": 0.0, "saturation_aware": False}
 
 _PUMPS = ("metric", "paper")
 _STARTS = ("nearest", "reference")
@@ -102,6 +107,12 @@ class PassivityGains:
             of the paper's law. Above ``sync_ratio`` the law is the paper's.
         sync_ratio: r̄ > 0, the speed ratio v/√M_r(s) below which ``sync_rate`` acts
             (with a smooth step: full strength at rest, none from r̄ on).
+        torque_limits_nm: the actuators' limits τ_max (N·m, one per joint), or None (the
+            dataclass default: the paper's law). NOT in the paper: when given, the law is
+            saturation-aware — the work-free reference torque τ_r⁰ is scaled into the box
+            |τ_j| ≤ τ_max,j (see :meth:`PassivityController.law`), so the actuators deliver
+            the law's torque instead of a clipped one that does work the law never
+            commanded; the law is the paper's whenever its torque fits in the box.
     """
 
     K: float | tuple[float, ...] = 100.0
@@ -112,6 +123,7 @@ class PassivityGains:
     speed_eps: float = 1e-6
     sync_rate: float = 0.0
     sync_ratio: float = 0.5
+    torque_limits_nm: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         k = np.atleast_1d(np.asarray(self.K, dtype=np.float64))
@@ -133,6 +145,14 @@ class PassivityGains:
             raise ValueError(f"sync_rate must be >= 0, got {self.sync_rate!r}")
         if not (np.isfinite(self.sync_ratio) and self.sync_ratio > 0):
             raise ValueError(f"sync_ratio must be positive, got {self.sync_ratio!r}")
+        if self.torque_limits_nm is not None:
+            lim = np.asarray(self.torque_limits_nm, dtype=np.float64)
+            if lim.ndim != 1 or lim.size == 0 or not np.all(np.isfinite(lim)) or np.any(lim <= 0):
+                raise ValueError(
+                    f"torque_limits_nm must be None or positive per-joint values, "
+                    f"got {self.torque_limits_nm!r}"
+                )
+            object.__setattr__(self, "torque_limits_nm", tuple(float(x) for x in lim))
 
     @classmethod
     def from_rates(
@@ -148,10 +168,12 @@ class PassivityGains:
         sync_rate: float = 0.0,
         sync_ratio: float = 0.5,
         dt_s: float | None = None,
+        torque_limits_nm: tuple[float, ...] | None = None,
     ) -> PassivityGains:
         """Absolute gains from rates (the module docstring's formulas): K_j = ω² ·
         max(M_jj, m_floor), capped by :func:`agents.gains.cap_stiffness` when the control
-        period ``dt_s`` (s) is given; κ = ω_s² M̄_r, R = ρ M̄_r, k_pump = λ / M̄_r.
+        period ``dt_s`` (s) is given; κ = ω_s² M̄_r, R = ρ M̄_r, k_pump = λ / M̄_r;
+        ``torque_limits_nm`` makes the law saturation-aware.
 
         Args:
             inertia_kgm2: the joint inertias that scale K, e.g. diag M(q_home) (kg·m²).
@@ -171,6 +193,7 @@ class PassivityGains:
             pump=pump,
             sync_rate=float(sync_rate),
             sync_ratio=float(sync_ratio),
+            torque_limits_nm=torque_limits_nm,
         )
 
     def stiffness(self, n: int) -> FloatArray:
@@ -200,9 +223,10 @@ class LawOutput(NamedTuple):
     s_tilde: float  # s̃ = s − σ (s)
     s_tilde_dot: float  # s̃̇ = ṡ − σ̇ (1)
     tau_sync: FloatArray  # (n,) N·m
-    tau_r0: FloatArray  # τ_r⁰, the work-free part of the reference torque, (n,) N·m
+    tau_r0: FloatArray  # α τ_r⁰, the work-free part of the reference torque as sent, (n,) N·m
     pump_torque: FloatArray  # f, (n,) N·m
     path_error: float  # |q − q_r(s)| (rad)
+    r0_scale: float = 1.0  # α, the saturation-aware scale of τ_r⁰ (1: the paper's law)
 
 
 @dataclass
@@ -212,6 +236,19 @@ class PassivityState:
     s: float = 0.0
     sd: float = 0.0
     sigma: float = 0.0
+
+
+def fit_scale(rest: FloatArray, r0: FloatArray, box: FloatArray) -> float:
+    """α = the largest a ∈ [0, 1] with |rest_j + a r0_j| ≤ max(box_j, |rest_j|) for every j
+    (the saturation-aware scale of :meth:`PassivityController.law`)."""
+    bound = np.maximum(box, np.abs(rest))
+    if np.all(np.abs(rest + r0) <= bound):  # the paper's torque fits
+        return 1.0
+    mag = np.abs(r0)
+    moving = mag > 0.0
+    # Per joint, |rest + a r0| ≤ bound holds for a ∈ [0, (bound − sign(r0) rest) / |r0|].
+    hi = (bound[moving] - np.sign(r0[moving]) * rest[moving]) / mag[moving]
+    return float(min(1.0, max(0.0, float(hi.min())))) if hi.size else 1.0
 
 
 class PassivityController:
@@ -254,9 +291,15 @@ class PassivityController:
         self.sd0 = sd0
         self._state = np.zeros(3)  # (s, ṡ, σ), integrated in place by the compiled law
         g = self.gains
+        if g.torque_limits_nm is not None and len(g.torque_limits_nm) != self.n:
+            raise ValueError(
+                f"torque_limits_nm has {len(g.torque_limits_nm)} entries, the robot has {self.n}"
+            )
+        box = g.torque_limits_nm or (0.0,) * self.n
         gains_vector = np.array(
             [g.kappa, g.R, g.k_pump, 1.0 if g.pump == "metric" else 0.0, g.speed_eps,
-             g.sync_rate, g.sync_ratio, *self.k_diag]
+             g.sync_rate, g.sync_ratio, 0.0 if g.torque_limits_nm is None else 1.0,
+             *self.k_diag, *box]
         )  # fmt: skip
         self._tables = law_tables(gains_vector, tables.knots, tables.coefficients, tables.period_s)
         self._out = np.zeros(len(OUT) + 3 * self.n)
@@ -309,6 +352,26 @@ class PassivityController:
         delivers −μ√M_r σ̇₀; tested on the exact closed loop): Theorem 4.1's
         Ė = −R s̃̇² holds only where v/√M_r(s) ≥ r̄. ``sigma_dot`` in the output is the
         full σ̇ (what σ integrates); s̃̇ = ṡ − σ̇ uses it too.
+
+        Saturation-aware reference torque (``gains.torque_limits_nm`` = τ_max given; not in
+        the paper): the paper's torque is τ = τ_rest + τ_r⁰ with τ_rest = −μ τ_q̇/v − ∂φ/∂q
+        + f. τ_r⁰ = (v²/M_r) τ_r − (q̇ᵀτ_r/M_r) τ_q̇ grows like σ̇², and once it exceeds
+        τ_max the actuators' per-joint clip turns this work-free torque into one that does
+        work, q̇ᵀclip(τ) ≠ q̇ᵀτ. After a fast push that work raises σ̇, hence τ_r⁰, hence
+        the work — the blow-up that an adversarial push search finds (σ̇ 1 → 6, commanded
+        torque ~200 τ_max, a joint past 50 rad/s within 75 ms). With τ_max given the law
+        sends
+
+            τ = τ_rest + α τ_r⁰,  α = max{a ∈ [0, 1] : |τ_rest,j + a τ_r⁰,j| ≤ B_j ∀ j},
+            B_j = max(τ_max,j, |τ_rest,j|)
+
+        (a = 0 is always feasible; where τ_rest alone exceeds a limit, τ_r⁰ may not push
+        that joint further out). α = 1 — the paper's law exactly — whenever the paper's
+        torque fits in the box, in particular on the reference (Lemma 5.1). Since
+        q̇ᵀτ_r⁰ = 0 for every α and s̈ does not involve τ_r⁰, the power the law sends and
+        the storage balance are the paper's: Ė = −R s̃̇² + pump power + q̇ᵀτ_d, now with
+        the torque the actuators really deliver whenever τ_rest fits (without the remedy
+        the clip adds q̇ᵀ(clip(τ) − τ) to Ė, of either sign and unbounded in σ̇).
         """
         g = self.gains
         ref, ref_sigma = self.tables.pair(s, sigma)
@@ -335,14 +398,21 @@ class PassivityController:
         tau_r0 = (speed2 / m_r) * ref.tau - (float(qd @ ref.tau) / m_r) * tau_qd
         mu_j = ref_sigma.w_r_d - g.kappa * s_t - g.R * s_td  # μ √M_r(s) (J)
         mu = mu_j / np.sqrt(m_r)
-        tau_sync = tau_r0 - dphi_dq
-        if speed > g.speed_eps:
-            tau_sync = tau_sync - (mu / speed) * tau_qd
         e_c = -g.kappa * s_t - g.R * s_td + float(dphi_dq @ ref.qd)
         h_plus_w = 0.5 * speed2 + self.model.potential(q) + ref_sigma.w_r
         h_r = 0.5 * m_r * (sd * sd - 1.0)
         direction = tau_qd if g.pump == "metric" else qd
         f = -g.k_pump * h_plus_w * direction
+        rest = f - dphi_dq  # τ − τ_r⁰: everything that does work
+        if speed > g.speed_eps:
+            rest = rest - (mu / speed) * tau_qd
+        alpha = 1.0
+        if g.torque_limits_nm is not None:  # saturation-aware: α τ_r⁰ into the box
+            alpha = fit_scale(rest, tau_r0, np.asarray(g.torque_limits_nm))
+            tau_r0 = alpha * tau_r0
+        tau_sync = tau_r0 - dphi_dq
+        if speed > g.speed_eps:
+            tau_sync = tau_sync - (mu / speed) * tau_qd
         f_r = -g.k_pump * h_r * sd
         s_dd = (-0.5 * ref.m_r_d * (sd * sd - 1.0) + e_c + f_r) / m_r
         return LawOutput(
@@ -363,6 +433,7 @@ class PassivityController:
             tau_r0=tau_r0,
             pump_torque=f,
             path_error=float(np.linalg.norm(err)),
+            r0_scale=float(alpha),
         )
 
     # -- the Controller protocol -------------------------------------------------------
@@ -473,20 +544,52 @@ class PassivityController:
         return FeatureBlock(names, low, high, values)
 
 
-def default_gains(ctx: ControlContext, tables: PassivityTables | None = None) -> PassivityGains:
-    """The robot's default gains for the context's path and control rate (module
-    docstring): rates from the profile, inertias from the model, M̄_r from the tables."""
-    r = rates(DEFAULT_RATES, ctx.profile.controller_gains.get(NAME), NAME)
+def gains_from_rates(
+    ctx: ControlContext, given: Mapping[str, Any] | None, tables: PassivityTables | None = None
+) -> PassivityGains:
+    """Absolute gains from rates (``DEFAULT_RATES`` updated by ``given``) for the context's
+    path and control rate: inertias from the model, M̄_r from the tables, the actuator box
+    from the profile when ``saturation_aware``."""
+    r = rates(DEFAULT_RATES, given, NAME)
+    aware = bool(r.pop("saturation_aware"))
     tables = tables or passivity_tables(ctx.path, ctx.model)
     inertia = home_inertia_kgm2(ctx.model, ctx.profile)
-    return PassivityGains.from_rates(inertia, tables.mean_m_r, dt_s=ctx.dt_s, **r)
+    return PassivityGains.from_rates(
+        inertia, tables.mean_m_r, dt_s=ctx.dt_s,
+        torque_limits_nm=ctx.profile.torque_limits_nm if aware else None, **r,
+    )  # fmt: skip
 
 
-def build(ctx: ControlContext, gains: PassivityGains | None = None) -> PassivityController:
-    """The controller for a context, with its default gains unless ``gains`` is given.
+def default_gains(ctx: ControlContext, tables: PassivityTables | None = None) -> PassivityGains:
+    """The robot's default gains for the context's path and control rate (module
+    docstring): the profile's rates."""
+    return gains_from_rates(ctx, ctx.profile.controller_gains.get(NAME), tables)
+
+
+def build(
+    ctx: ControlContext, gains: PassivityGains | Mapping[str, Any] | None = None
+) -> PassivityController:
+    """The controller for a context: its default gains, the given gains, or gains from the
+    given rates (a mapping, e.g. tuned ones).
 
     Raises:
         InvalidPathError: the path is stationary for the law (M_r below β somewhere).
     """
     tables = passivity_tables(ctx.path, ctx.model)
-    return PassivityController(ctx.model, tables, gains or default_gains(ctx, tables))
+    if gains is None:
+        gains = default_gains(ctx, tables)
+    elif isinstance(gains, Mapping):
+        gains = gains_from_rates(ctx, gains, tables)
+    return PassivityController(ctx.model, tables, gains)
+
+
+def build_paper(
+    ctx: ControlContext, gains: PassivityGains | Mapping[str, Any] | None = None
+) -> PassivityController:
+    """The paper's law exactly (:data:`PAPER_LAW`) with the robot's (or the given) rates."""
+    if isinstance(gains, PassivityGains):
+        if gains.sync_rate or gains.torque_limits_nm is not None:
+            raise InvalidConfigError("the paper's law has no sync_rate and no torque_limits_nm")
+        return build(ctx, gains)
+    base = dict(ctx.profile.controller_gains.get(NAME, {})) if gains is None else dict(gains)
+    return build(ctx, {**base, **PAPER_LAW})

@@ -22,16 +22,19 @@ FloatArray = NDArray[np.float64]
 
 #: The scalar outputs, in ``out``'s order (then τ_sync, τ_r⁰, f: n entries each).
 OUT = ("s_dd", "sigma_dot", "energy", "h_plus_w", "h_r", "phi", "psi", "pump_power",
-       "dissipation", "sync_power", "s_tilde", "s_tilde_dot", "path_error")  # fmt: skip
-#: Entries of the gains vector before the stiffness diagonal K (n entries).
-GAINS = ("kappa", "R", "k_pump", "pump_metric", "speed_eps", "sync_rate", "sync_ratio")
+       "dissipation", "sync_power", "s_tilde", "s_tilde_dot", "path_error",
+       "r0_scale")  # fmt: skip
+#: Entries of the gains vector before the stiffness diagonal K and the torque box (n each).
+GAINS = ("kappa", "R", "k_pump", "pump_metric", "speed_eps", "sync_rate", "sync_ratio",
+         "saturation_aware")  # fmt: skip
 
 
 def law_tables(
     gains: FloatArray, knots: FloatArray, coeffs: FloatArray, period_s: float
 ) -> tuple[FloatArray, NDArray[np.int64]]:
-    """The constant inputs of :func:`law_step`, packed: the gains vector (:data:`GAINS` then
-    K), the tables' knots (N + 1,) and spline coefficients (4, N, 3n + 4), and the period."""
+    """The constant inputs of :func:`law_step`, packed: the gains vector (:data:`GAINS`, then
+    K and the torque box τ_max), the tables' knots (N + 1,) and spline coefficients
+    (4, N, 3n + 4), and the period."""
     return pack([gains, knots, coeffs, np.array([period_s])])
 
 
@@ -70,6 +73,8 @@ def law_step(
     period = view1(flat, layout, 3)[0]
     kappa, big_r, k_pump = gains[0], gains[1], gains[2]
     metric, speed_eps, sync_rate, sync_ratio = gains[3] > 0.5, gains[4], gains[5], gains[6]
+    saturation_aware = gains[7] > 0.5
+    k0, b0 = len(GAINS), len(GAINS) + n  # offsets of K and of the torque box
     s, sd, sigma = state[0], state[1], state[2]
     m = 3 * n + 4
     ref = np.empty(m)
@@ -107,7 +112,7 @@ def law_step(
     phi, err2, dphi_qr, qd_tau_r = 0.0, 0.0, 0.0, 0.0
     for i in range(n):
         err = q[i] - ref[i]
-        dphi = gains[7 + i] * err
+        dphi = gains[k0 + i] * err
         phi += err * dphi
         err2 += err * err
         dphi_qr += dphi * ref[n + i]
@@ -123,17 +128,39 @@ def law_step(
     s_dd = (-0.5 * m_r_d * (sd * sd - 1.0) + e_c + f_r) / m_r
     off = len(OUT)
     pump_power = 0.0
+    # out's vector blocks first hold −∂φ/∂q − μ τ_q̇/v, τ_r⁰ and f; then, with the
+    # saturation-aware scale α of τ_r⁰, τ_sync = α τ_r⁰ − ∂φ/∂q − μ τ_q̇/v and α τ_r⁰.
     for i in range(n):
         tau_r0 = (speed2 / m_r) * ref[2 * n + i] - (qd_tau_r / m_r) * tau_qd[i]
-        tau_sync = tau_r0 - gains[7 + i] * (q[i] - ref[i])
-        if speed > speed_eps:
-            tau_sync = tau_sync - (mu / speed) * tau_qd[i]
         f = -k_pump * h_plus_w * (tau_qd[i] if metric else qd[i])
-        tau[i] = tau_sync + f
+        sync_rest = -gains[k0 + i] * (q[i] - ref[i])
+        if speed > speed_eps:
+            sync_rest = sync_rest - (mu / speed) * tau_qd[i]
         pump_power += qd[i] * f
-        out[off + i] = tau_sync
+        out[off + i] = sync_rest
         out[off + n + i] = tau_r0
         out[off + 2 * n + i] = f
+    alpha = 1.0
+    if saturation_aware:  # τ = τ_rest + α τ_r⁰ inside max(τ_max, |τ_rest|) per joint
+        fits = True
+        for i in range(n):
+            rest, r0 = out[off + i] + out[off + 2 * n + i], out[off + n + i]
+            if abs(rest + r0) > max(gains[b0 + i], abs(rest)):
+                fits = False
+        if not fits:
+            for i in range(n):
+                rest, r0 = out[off + i] + out[off + 2 * n + i], out[off + n + i]
+                if r0 != 0.0:
+                    bound = max(gains[b0 + i], abs(rest))
+                    sign = 1.0 if r0 > 0.0 else -1.0
+                    alpha = min(alpha, (bound - sign * rest) / abs(r0))
+            alpha = max(alpha, 0.0)
+    for i in range(n):
+        tau_r0 = alpha * out[off + n + i]
+        tau_sync = tau_r0 + out[off + i]
+        tau[i] = tau_sync + out[off + 2 * n + i]
+        out[off + i] = tau_sync
+        out[off + n + i] = tau_r0
     out[0] = s_dd
     out[1] = sigma_dot
     out[2] = h_plus_w + h_r + phi + psi
@@ -147,6 +174,7 @@ def law_step(
     out[10] = s_t
     out[11] = s_td
     out[12] = math.sqrt(err2)
+    out[13] = alpha
     if dt > 0.0:
         sd_new = sd + dt * s_dd
         state[0] = s + dt * sd_new

@@ -18,6 +18,7 @@ the robot profile's ``controller_gains["pd_gravity"]["omega"]`` (rad/s), capped 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,11 +67,17 @@ class PDGravityGains:
         )
 
 
-def default_gains(ctx: ControlContext) -> PDGravityGains:
-    """The robot's default gains at the context's control rate (module docstring)."""
-    r = rates(DEFAULT_RATES, ctx.profile.controller_gains.get(NAME), NAME)
+def gains_from_rates(ctx: ControlContext, given: Mapping[str, float] | None) -> PDGravityGains:
+    """Absolute gains from rates (``DEFAULT_RATES`` updated by ``given``) at the context's
+    control rate (module docstring)."""
+    r = rates(DEFAULT_RATES, given, NAME)
     inertia = home_inertia_kgm2(ctx.model, ctx.profile)
     return PDGravityGains.from_inertia(inertia, cap_bandwidth(r["omega"], ctx.dt_s), r["zeta"])
+
+
+def default_gains(ctx: ControlContext) -> PDGravityGains:
+    """The robot's default gains at the context's control rate: the profile's rates."""
+    return gains_from_rates(ctx, ctx.profile.controller_gains.get(NAME))
 
 
 class PDGravityController:
@@ -124,6 +131,13 @@ class PDGravityController:
         return time_indexed_features(self.clock, self.n, max_speed_rad_s)
 
 
-def build(ctx: ControlContext, gains: PDGravityGains | None = None) -> PDGravityController:
-    """The controller for a context, with its default gains unless ``gains`` is given."""
-    return PDGravityController(ctx.model, ctx.path, gains or default_gains(ctx))
+def build(
+    ctx: ControlContext, gains: PDGravityGains | Mapping[str, float] | None = None
+) -> PDGravityController:
+    """The controller for a context: its default gains, the given gains, or gains from the
+    given rates (a mapping, e.g. tuned ones)."""
+    if gains is None:
+        gains = default_gains(ctx)
+    elif isinstance(gains, Mapping):
+        gains = gains_from_rates(ctx, gains)
+    return PDGravityController(ctx.model, ctx.path, gains)

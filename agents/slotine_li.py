@@ -33,14 +33,15 @@ polarization
 :func:`christoffel_product` uses the second form through inverse dynamics with q̈ = 0,
 where g(q) cancels: two model calls, no finite differences.
 
-Default gains: Λ = ω I (1/s), K_D = ω diag(m) (N·m·s/rad), m = diag M(q_home) — the
-linearised error obeys (s + Λ)(s + M⁻¹K_D) e = 0, a double pole near −ω — with ω the robot
-profile's ``controller_gains["slotine_li"]["omega"]`` (rad/s), capped at α / dt
-(:func:`agents.gains.cap_bandwidth`).
+Default gains: Λ = ω I (1/s), K_D = c ω diag(m) (N·m·s/rad), m = diag M(q_home) — with
+c = 1 the linearised error obeys (s + Λ)(s + M⁻¹K_D) e = 0, a double pole near −ω — with ω
+and c (``kd_ratio``, default 1) the robot profile's ``controller_gains["slotine_li"]``, ω
+capped at α / dt (:func:`agents.gains.cap_bandwidth`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,7 +59,7 @@ from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
 
 NAME = "slotine_li"
 #: Generic default rates: ω (rad/s).
-DEFAULT_RATES = {"omega": 20.0}
+DEFAULT_RATES = {"omega": 20.0, "kd_ratio": 1.0}
 
 
 @dataclass(frozen=True)
@@ -78,17 +79,26 @@ class SlotineLiGains:
         object.__setattr__(self, "kd_nms_rad", check_gain(self.kd_nms_rad, "kd_nms_rad"))
 
     @classmethod
-    def from_inertia(cls, inertia_kgm2: FloatArray, omega_rad_s: float) -> SlotineLiGains:
-        """Λ = ω, K_D = ω m, with m the joint inertias (kg·m²): a double pole near −ω."""
+    def from_inertia(
+        cls, inertia_kgm2: FloatArray, omega_rad_s: float, kd_ratio: float = 1.0
+    ) -> SlotineLiGains:
+        """Λ = ω, K_D = c ω m, with m the joint inertias (kg·m²) and c = ``kd_ratio``: c = 1
+        puts a double pole near −ω."""
         m = np.asarray(inertia_kgm2, dtype=np.float64)
-        return cls(lambda_1_s=float(omega_rad_s), kd_nms_rad=rounded(omega_rad_s * m))
+        return cls(lambda_1_s=float(omega_rad_s), kd_nms_rad=rounded(kd_ratio * omega_rad_s * m))
+
+
+def gains_from_rates(ctx: ControlContext, given: Mapping[str, float] | None) -> SlotineLiGains:
+    """Absolute gains from rates (``DEFAULT_RATES`` updated by ``given``) at the context's
+    control rate (module docstring)."""
+    r = rates(DEFAULT_RATES, given, NAME)
+    inertia = home_inertia_kgm2(ctx.model, ctx.profile)
+    return SlotineLiGains.from_inertia(inertia, cap_bandwidth(r["omega"], ctx.dt_s), r["kd_ratio"])
 
 
 def default_gains(ctx: ControlContext) -> SlotineLiGains:
-    """The robot's default gains at the context's control rate (module docstring)."""
-    r = rates(DEFAULT_RATES, ctx.profile.controller_gains.get(NAME), NAME)
-    inertia = home_inertia_kgm2(ctx.model, ctx.profile)
-    return SlotineLiGains.from_inertia(inertia, cap_bandwidth(r["omega"], ctx.dt_s))
+    """The robot's default gains at the context's control rate: the profile's rates."""
+    return gains_from_rates(ctx, ctx.profile.controller_gains.get(NAME))
 
 
 def christoffel_product(
@@ -190,6 +200,13 @@ class SlotineLiController:
         return time_indexed_features(self.clock, self.n, max_speed_rad_s, lam=self.lam)
 
 
-def build(ctx: ControlContext, gains: SlotineLiGains | None = None) -> SlotineLiController:
-    """The controller for a context, with its default gains unless ``gains`` is given."""
-    return SlotineLiController(ctx.model, ctx.path, gains or default_gains(ctx))
+def build(
+    ctx: ControlContext, gains: SlotineLiGains | Mapping[str, float] | None = None
+) -> SlotineLiController:
+    """The controller for a context: its default gains, the given gains, or gains from the
+    given rates (a mapping, e.g. tuned ones)."""
+    if gains is None:
+        gains = default_gains(ctx)
+    elif isinstance(gains, Mapping):
+        gains = gains_from_rates(ctx, gains)
+    return SlotineLiController(ctx.model, ctx.path, gains)

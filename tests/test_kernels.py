@@ -230,3 +230,32 @@ def test_batch_metric_equals_the_mass_matrix_quadratic_form(robot: str) -> None:
     v = rng.normal(0.0, 1.0, (40, profile.n))
     expected = np.array([vk @ model.mass_matrix(qk) @ vk for qk, vk in zip(q, v, strict=True)])
     assert rel(model.metric_norms2(q, v), expected) <= TOL
+
+
+@pytest.mark.parametrize("robot", ["two_link", "iiwa"])
+def test_law_kernel_equals_the_numpy_law_when_the_remedy_scales(robot: str) -> None:
+    """The saturation-aware law (tight limits, fast states: α < 1 often) in both twins."""
+    profile = robot_profile(robot)
+    model = PinocchioModel(profile)
+    tables = PassivityTables(default_path(profile), model, grid_size=256)
+    limits = tuple(0.05 * x for x in profile.torque_limits_nm)
+    gains = PassivityGains(K=40.0, kappa=20.0, R=2.0, k_pump=3.0, torque_limits_nm=limits)
+    ctrl, twin = (
+        PassivityController(model, tables, gains),
+        PassivityController(model, tables, gains),
+    )
+    rng = np.random.default_rng(8)
+    scaled = 0
+    for _ in range(60):
+        s = rng.uniform(0.0, tables.period_s)
+        q = tables(s).q + rng.normal(0.0, 0.05, profile.n)
+        qd = tables(s).qd * rng.uniform(0.5, 6.0)
+        state = (s, rng.uniform(0.5, 1.5), s + rng.normal(0.0, 0.05))
+        ctrl.reset(q, qd, s0=state[0], sd0=state[1], sigma0=state[2])
+        ctrl.step(q, qd, 0.0)
+        out, expected = ctrl.last, twin.law(q, qd, *state)
+        assert out is not None
+        scaled += expected.r0_scale < 1.0
+        for field in expected._fields:
+            assert rel(getattr(out, field), getattr(expected, field)) <= TOL, field
+    assert scaled > 10

@@ -181,3 +181,102 @@ def test_policy_adapter_runs_an_episode_through_evaluate_policy() -> None:
     assert diag["path_error"] < 1e-2
     assert diag["sd"] == pytest.approx(1.0, abs=0.05)
     env.close()
+
+
+# -- the saturation-aware remedy (not in the paper) -------------------------------------
+
+#: Pushes of 2 J that an adversarial search found to blow up the paper's law on the iiwa
+#: (``python -m train.adversary``, reset seed 0): onset (s) and joint-velocity direction.
+BLOW_UP_PUSHES = [
+    (1.278404778952063, (0.3956932142474212, 0.729523524597288, -0.770449352174601,
+                         0.21192535627735976, 0.0800063718368702, 0.7054902906771687,
+                         0.46217580907181954)),
+    (1.0808003092716807, (-0.005293333099286701, 0.7909209665363424, -0.2748986148083453,
+                          0.702490262445925, -0.8013184039481994, -0.34257126461666476,
+                          0.21179867583844536)),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("onset", "direction"), BLOW_UP_PUSHES)
+def test_found_blow_up_pushes_break_the_paper_law_not_the_default(onset, direction) -> None:
+    """The mechanism and the remedy on the real plant: under a searched 2-J push the paper's
+    law (clipped by the actuators) goes unstable; the default, saturation-aware law — the
+    same law with its work-free reference torque scaled into the actuator box — does not."""
+    from train.adversary import evaluate
+
+    spec = {"type": "impulse", "energy_j": 2.0, "duration_s": 0.05, "onset_s": onset,
+            "direction": list(direction)}  # fmt: skip
+    window = (onset + 0.05, onset + 1.55)
+    args = ("ptrack_gym/IiwaTrack-v0", spec, 0, onset + 1.6, window, 1000.0, 0.5)
+    paper = evaluate(args[0], "passivity_paper", *args[1:])
+    default = evaluate(args[0], "passivity", *args[1:])
+    assert paper.unstable
+    assert not default.unstable
+    assert default.peak_speed_rad_s < 0.5 * 50.0 and default.cost < 0.1
+
+
+def test_remedy_keeps_the_law_where_it_fits_and_its_power_where_it_scales() -> None:
+    """α = 1 and the paper's torque on the reference (Lemma 5.1's state) and at moderate
+    states; at a fast state whose paper torque leaves the box, α < 1, every |τ_j| ≤
+    max(τ_max,j, |τ_rest,j|), and the power q̇ᵀτ, s̈, σ̇ and E are the paper's (q̇ᵀτ_r⁰ = 0)."""
+    spec = robot_profile("iiwa")
+    model = PinocchioModel(spec)
+    tables = PassivityTables(default_path(spec), model, grid_size=512)
+    gains = PassivityGains(K=40.0, kappa=30.0, R=3.0, k_pump=5.0)
+    limits = spec.torque_limits_nm
+    aware = PassivityController(
+        model, tables, PassivityGains(**{**gains.__dict__, "torque_limits_nm": limits})
+    )
+    paper = PassivityController(model, tables, gains)
+    for s in (0.3, 2.9, 6.1):
+        ref = tables.exact(s)
+        a, p = aware.law(ref.q, ref.qd, s, 1.0, s), paper.law(ref.q, ref.qd, s, 1.0, s)
+        assert a.r0_scale == 1.0
+        np.testing.assert_array_equal(a.tau, p.tau)
+    rng = np.random.default_rng(0)
+    scaled = 0
+    for _ in range(50):
+        s = rng.uniform(0.0, tables.period_s)
+        ref = tables(s)
+        q, qd = ref.q + rng.normal(0.0, 0.05, 7), ref.qd * rng.uniform(3.0, 8.0)  # fast
+        state = (s, 1.0, s - 0.05)
+        a, p = aware.law(q, qd, *state), paper.law(q, qd, *state)
+        if np.all(np.abs(p.tau) <= limits):
+            continue
+        scaled += 1
+        assert 0.0 <= a.r0_scale < 1.0
+        rest = a.tau - a.tau_r0
+        assert np.all(np.abs(a.tau) <= np.maximum(limits, np.abs(rest)) * (1 + 1e-12))
+        assert qd @ a.tau == pytest.approx(qd @ p.tau, rel=1e-9, abs=1e-9)
+        for field in ("s_dd", "sigma_dot", "energy", "pump_power", "dissipation"):
+            assert getattr(a, field) == getattr(p, field), field
+    assert scaled > 10  # the check is not vacuous
+
+
+def test_theorem_4_1_balance_holds_with_the_remedy_acting() -> None:
+    """On the exact closed loop (analytic two-link, DOP853) with tight actuator limits the
+    remedy scales τ_r⁰ (α < 1 along the run), and the storage balance is still
+    E(t) − E(0) = −∫R s̃̇² + ∫pump power: scaling a work-free torque changes no power."""
+    model = TwoLinkAnalyticModel()
+    tables = PassivityTables(default_path(robot_profile("two_link")), model)
+    gains = PassivityGains(K=20.0, kappa=2.0, R=0.5, k_pump=2.0, torque_limits_nm=(3.0, 1.5))
+    ctrl = PassivityController(model, tables, gains)
+    s0 = 0.4
+    ref = tables.exact(s0)
+    x0 = np.concatenate(
+        [ref.q + np.array([0.05, -0.04]), 2.5 * ref.qd, [s0, 1.0, s0, 0.0, 0.0, 0.0, 0.0]]
+    )
+    scales: list[float] = []
+
+    def rhs(t, x):
+        out = ctrl.law(x[:2], x[2:4], *x[4:7])
+        scales.append(out.r0_scale)
+        return _closed_loop(model, ctrl, np.zeros(2))(t, x)
+
+    sol = solve_ivp(rhs, (0.0, 1.0), x0, method="DOP853", rtol=1e-10, atol=1e-12,
+                    t_eval=np.linspace(0.0, 1.0, 101))  # fmt: skip
+    assert sol.success
+    energy = np.array([ctrl.law(x[:2], x[2:4], *x[4:7]).energy for x in sol.y.T])
+    balance = energy - energy[0] + sol.y[7] - sol.y[8] - sol.y[9] - sol.y[10]
+    assert min(scales) < 0.5  # the remedy acted
+    assert np.abs(balance).max() < 1e-7

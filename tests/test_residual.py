@@ -108,7 +108,10 @@ def test_features_are_bounded_float32_and_named(make_env, base: str) -> None:
     assert np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))
     n_inner = env.unwrapped.observation_space.shape[0]
     assert space.shape == (n_inner + len(env.feature_names),)
-    expected = {"passivity": 6 + 4, "computed_torque": 6, "pd_gravity": 6, "slotine_li": 8}
+    expected = {
+        "passivity": 6 + 4, "passivity_paper": 6 + 4, "computed_torque": 6, "pd_gravity": 6,
+        "slotine_li": 8,
+    }  # fmt: skip
     assert len(env.feature_names) == expected[base]
     obs, _ = env.reset(seed=2)
     rng = np.random.default_rng(0)
