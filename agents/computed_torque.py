@@ -30,6 +30,8 @@ from ptrack_gym.robots.model import RobotModel
 NAME = "computed_torque"
 #: Generic default rates: ω (rad/s), ζ.
 DEFAULT_RATES = {"omega": 20.0, "zeta": 1.0}
+#: What ``python -m train.tune`` searches: rate → (low, high, log scale).
+TUNABLE = {"omega": (3.0, 60.0, True), "zeta": (0.5, 2.0, False)}
 
 
 @dataclass(frozen=True)
@@ -55,15 +57,15 @@ class ComputedTorqueGains:
 
 
 def gains_from_rates(ctx: ControlContext, given: Mapping[str, float] | None) -> ComputedTorqueGains:
-    """Absolute gains from rates (``DEFAULT_RATES`` updated by ``given``) at the context's
-    control rate (module docstring)."""
-    r = rates(DEFAULT_RATES, given, NAME)
+    """Absolute gains from rates — ``DEFAULT_RATES``, updated by the robot's profile rates,
+    updated by ``given`` — at the context's control rate (module docstring)."""
+    r = rates(DEFAULT_RATES, given, NAME, ctx.profile.controller_gains.get(NAME))
     return ComputedTorqueGains.from_bandwidth(cap_bandwidth(r["omega"], ctx.dt_s), r["zeta"])
 
 
 def default_gains(ctx: ControlContext) -> ComputedTorqueGains:
     """The robot's default gains at the context's control rate: the profile's rates."""
-    return gains_from_rates(ctx, ctx.profile.controller_gains.get(NAME))
+    return gains_from_rates(ctx, None)
 
 
 class ComputedTorqueController:

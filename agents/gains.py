@@ -14,6 +14,8 @@ loop with a zero-order hold loses its continuous-time stability margin beyond th
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from agents.base import FloatArray
@@ -87,13 +89,20 @@ def rounded(x: FloatArray) -> tuple[float, ...]:
     return tuple(float(f"{v:.4g}") for v in x)
 
 
-def rates(defaults: dict[str, float], given: object, controller: str) -> dict[str, float]:
-    """A controller's rates: its generic ``defaults`` updated by the robot's ``given``
-    entry; an unknown rate name raises :class:`InvalidConfigError`."""
-    given = dict(given or {})  # type: ignore[call-overload]
-    unknown = sorted(set(given) - set(defaults))
-    if unknown:
-        raise InvalidConfigError(
-            f"unknown {controller} gain rate(s) {unknown}; known: {sorted(defaults)}"
-        )
-    return {**defaults, **given}
+def rates(
+    defaults: dict[str, Any],
+    given: object,
+    controller: str,
+    robot: object = None,
+) -> dict[str, Any]:
+    """A controller's rates: its generic ``defaults``, updated by the ``robot``'s profile
+    entry, updated by ``given`` (e.g. tuned rates, which override only what they name);
+    an unknown rate name raises :class:`InvalidConfigError`."""
+    layers = [dict(robot or {}), dict(given or {})]  # type: ignore[call-overload]
+    for layer in layers:
+        unknown = sorted(set(layer) - set(defaults))
+        if unknown:
+            raise InvalidConfigError(
+                f"unknown {controller} gain rate(s) {unknown}; known: {sorted(defaults)}"
+            )
+    return {**defaults, **layers[0], **layers[1]}

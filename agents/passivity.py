@@ -79,6 +79,14 @@ DEFAULT_RATES: dict[str, Any] = {
     "sync_ratio": 0.5,
     "saturation_aware": True,
 }
+#: What ``python -m train.tune`` searches: rate → (low, high, log scale); the rest (the
+#: inertia floor, the re-synchronisation, the remedy) stays the robot's.
+TUNABLE = {
+    "omega": (5.0, 40.0, True),
+    "omega_s": (5.0, 40.0, True),
+    "rho": (2.0, 40.0, True),
+    "lam": (0.5, 10.0, True),
+}
 #: The paper's law exactly (the ``passivity_paper`` controller): no re-synchronisation of σ,
 #: no saturation-aware reference torque — whatever a robot's defaults or tuned rates say.
 PAPER_LAW = {"sync_rate": 0.0, "saturation_aware": False}
@@ -547,10 +555,11 @@ class PassivityController:
 def gains_from_rates(
     ctx: ControlContext, given: Mapping[str, Any] | None, tables: PassivityTables | None = None
 ) -> PassivityGains:
-    """Absolute gains from rates (``DEFAULT_RATES`` updated by ``given``) for the context's
-    path and control rate: inertias from the model, M̄_r from the tables, the actuator box
-    from the profile when ``saturation_aware``."""
-    r = rates(DEFAULT_RATES, given, NAME)
+    """Absolute gains from rates — ``DEFAULT_RATES``, updated by the robot's profile rates,
+    updated by ``given`` — for the context's path and control rate: inertias from the
+    model, M̄_r from the tables, the actuator box from the profile when
+    ``saturation_aware``."""
+    r = rates(DEFAULT_RATES, given, NAME, ctx.profile.controller_gains.get(NAME))
     aware = bool(r.pop("saturation_aware"))
     tables = tables or passivity_tables(ctx.path, ctx.model)
     inertia = home_inertia_kgm2(ctx.model, ctx.profile)
@@ -563,7 +572,7 @@ def gains_from_rates(
 def default_gains(ctx: ControlContext, tables: PassivityTables | None = None) -> PassivityGains:
     """The robot's default gains for the context's path and control rate (module
     docstring): the profile's rates."""
-    return gains_from_rates(ctx, ctx.profile.controller_gains.get(NAME), tables)
+    return gains_from_rates(ctx, None, tables)
 
 
 def build(
@@ -591,5 +600,4 @@ def build_paper(
         if gains.sync_rate or gains.torque_limits_nm is not None:
             raise InvalidConfigError("the paper's law has no sync_rate and no torque_limits_nm")
         return build(ctx, gains)
-    base = dict(ctx.profile.controller_gains.get(NAME, {})) if gains is None else dict(gains)
-    return build(ctx, {**base, **PAPER_LAW})
+    return build(ctx, {**dict(gains or {}), **PAPER_LAW})

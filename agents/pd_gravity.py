@@ -37,6 +37,8 @@ from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
 NAME = "pd_gravity"
 #: Generic default rates: ω (rad/s), ζ.
 DEFAULT_RATES = {"omega": 20.0, "zeta": 1.0}
+#: What ``python -m train.tune`` searches: rate → (low, high, log scale).
+TUNABLE = {"omega": (3.0, 60.0, True), "zeta": (0.5, 2.0, False)}
 
 
 @dataclass(frozen=True)
@@ -68,16 +70,16 @@ class PDGravityGains:
 
 
 def gains_from_rates(ctx: ControlContext, given: Mapping[str, float] | None) -> PDGravityGains:
-    """Absolute gains from rates (``DEFAULT_RATES`` updated by ``given``) at the context's
-    control rate (module docstring)."""
-    r = rates(DEFAULT_RATES, given, NAME)
+    """Absolute gains from rates — ``DEFAULT_RATES``, updated by the robot's profile rates,
+    updated by ``given`` — at the context's control rate (module docstring)."""
+    r = rates(DEFAULT_RATES, given, NAME, ctx.profile.controller_gains.get(NAME))
     inertia = home_inertia_kgm2(ctx.model, ctx.profile)
     return PDGravityGains.from_inertia(inertia, cap_bandwidth(r["omega"], ctx.dt_s), r["zeta"])
 
 
 def default_gains(ctx: ControlContext) -> PDGravityGains:
     """The robot's default gains at the context's control rate: the profile's rates."""
-    return gains_from_rates(ctx, ctx.profile.controller_gains.get(NAME))
+    return gains_from_rates(ctx, None)
 
 
 class PDGravityController:

@@ -2,10 +2,10 @@
 
 Adding a controller is one file (a class with the :class:`~agents.base.Controller`
 interface and a ``build(ctx, gains=None)`` function that fills in default gains) and one
-entry in :data:`CONTROLLERS`. :func:`make_controller` is the one constructor the residual
-wrapper, the evaluation and training scripts and the benchmarks use. Every controller is
-built from the env's *nominal* model (``env.unwrapped.model``), never from the simulated
-body.
+entry in :data:`CONTROLLERS` (and in :data:`TUNABLE` if its rates are to be tuned).
+:func:`make_controller` is the one constructor the residual wrapper, the evaluation and
+training scripts and the benchmarks use. Every controller is built from the env's
+*nominal* model (``env.unwrapped.model``), never from the simulated body.
 """
 
 from __future__ import annotations
@@ -31,6 +31,15 @@ CONTROLLERS: dict[str, Callable[..., Controller]] = {
 
 #: The controller names :func:`make_controller` accepts.
 CONTROLLER_NAMES: tuple[str, ...] = tuple(CONTROLLERS)
+
+#: name → the rates ``python -m train.tune`` searches, rate → (low, high, log scale).
+TUNABLE: dict[str, dict[str, tuple[float, float, bool]]] = {
+    "passivity": passivity.TUNABLE,
+    "passivity_paper": passivity.TUNABLE,
+    "computed_torque": computed_torque.TUNABLE,
+    "pd_gravity": pd_gravity.TUNABLE,
+    "slotine_li": slotine_li.TUNABLE,
+}
 
 
 #: Where tuned gains live: ``<robot>-<controller>.yml`` (written by ``python -m train.tune``).

@@ -60,6 +60,8 @@ from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
 NAME = "slotine_li"
 #: Generic default rates: ω (rad/s).
 DEFAULT_RATES = {"omega": 20.0, "kd_ratio": 1.0}
+#: What ``python -m train.tune`` searches: rate → (low, high, log scale).
+TUNABLE = {"omega": (3.0, 60.0, True), "kd_ratio": (0.25, 4.0, True)}
 
 
 @dataclass(frozen=True)
@@ -89,16 +91,16 @@ class SlotineLiGains:
 
 
 def gains_from_rates(ctx: ControlContext, given: Mapping[str, float] | None) -> SlotineLiGains:
-    """Absolute gains from rates (``DEFAULT_RATES`` updated by ``given``) at the context's
-    control rate (module docstring)."""
-    r = rates(DEFAULT_RATES, given, NAME)
+    """Absolute gains from rates — ``DEFAULT_RATES``, updated by the robot's profile rates,
+    updated by ``given`` — at the context's control rate (module docstring)."""
+    r = rates(DEFAULT_RATES, given, NAME, ctx.profile.controller_gains.get(NAME))
     inertia = home_inertia_kgm2(ctx.model, ctx.profile)
     return SlotineLiGains.from_inertia(inertia, cap_bandwidth(r["omega"], ctx.dt_s), r["kd_ratio"])
 
 
 def default_gains(ctx: ControlContext) -> SlotineLiGains:
     """The robot's default gains at the context's control rate: the profile's rates."""
-    return gains_from_rates(ctx, ctx.profile.controller_gains.get(NAME))
+    return gains_from_rates(ctx, None)
 
 
 def christoffel_product(

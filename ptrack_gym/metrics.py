@@ -111,6 +111,9 @@ def episode_metrics(
     * ``recovery_s`` — :func:`recovery_time` after ``impulse_end_s`` (NaN without one);
     * ``tau_rms_frac``, ``tau_peak_frac``, ``saturation_frac`` — effort relative to the
       limits (fraction of steps with a joint at ≥ 99.9% of its limit);
+    * ``tau_dyn_rms_frac`` — the RMS over steps and joints of (τ − g(q))/τ_max, g the nominal
+      gravity torque at the state: the effort beyond holding the arm up, which is most of
+      ``tau_rms_frac`` and the same for every controller (the effort budgets and fronts);
     * ``controller_work_j`` — Σ τ_kᵀ (q_{k+1} − q_k), ``disturbance_work_j``;
     * ``failed`` — 1 if unstable or the path distance ever exceeded
       ``failure_distance_rad`` (failed episodes are kept and counted, never dropped).
@@ -147,6 +150,8 @@ def episode_metrics(
     ratio = speed_ratio(model, path, q[k0:], qd[k0:], s_star[k0:])
     offset = phase_offset(s_star[k0:], record.s_ref[k0:], path.period_s)
     frac = np.abs(record.tau_nm) / record.torque_limits_nm
+    gravity = np.array([model.gravity(qk) for qk in q])
+    dyn_frac = (record.tau_nm - gravity) / record.torque_limits_nm
     dq = np.diff(q, axis=0)
     work = float(np.sum(record.tau_nm[1:] * dq)) if len(q) > 1 else 0.0
     # A blown-up episode never recovered (and its padded series has no time stamps).
@@ -165,6 +170,7 @@ def episode_metrics(
         "phase_offset_s": float(np.mean(offset)) if offset.size else float("nan"),
         "recovery_s": recovery,
         "tau_rms_frac": rms(frac),
+        "tau_dyn_rms_frac": rms(dyn_frac),
         "tau_peak_frac": float(np.max(frac)),
         "saturation_frac": float(np.mean(np.any(frac >= 0.999, axis=1))),
         "controller_work_j": work,
@@ -182,6 +188,7 @@ METRIC_NAMES: Sequence[str] = (
     "phase_offset_s",
     "recovery_s",
     "tau_rms_frac",
+    "tau_dyn_rms_frac",
     "tau_peak_frac",
     "saturation_frac",
     "controller_work_j",

@@ -62,6 +62,13 @@ class EpisodeSettings:
     start: str
     failure_distance_rad: float
     recovery_threshold_rad: float
+    gains: str | tuple[tuple[str, Any], ...] = "default"
+    """The model-based controllers' gains: "default", "tuned" (``agents/tuned``), or rates
+    as sorted (name, value) pairs (what ``python -m train.tune`` tries)."""
+
+    def controller_gains(self) -> str | dict[str, Any]:
+        """The ``gains`` argument of ``make_controller``."""
+        return self.gains if isinstance(self.gains, str) else dict(self.gains)
 
 
 @dataclass(frozen=True)
@@ -214,7 +221,8 @@ def run_episode(
         env, policy = _sb3_env_and_policy(task.controller, settings, task.disturbance, task.level)
     else:
         env = _env(settings, task.disturbance, task.level)
-        policy = ControllerPolicy(env, make_controller(task.controller, env))
+        controller = make_controller(task.controller, env, settings.controller_gains())
+        policy = ControllerPolicy(env, controller)
     u = env.unwrapped
     record, storage = rollout(env, policy, task.reset_seed, keep_trace)
     metrics = episode_metrics(

@@ -35,10 +35,11 @@ from typing import Any
 import numpy as np
 import yaml
 
-from agents.registry import CONTROLLER_NAMES
+from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
 from ptrack_gym.disturbances import PRESETS
 from ptrack_gym.errors import InvalidConfigError, PtrackError
 from ptrack_gym.metrics import METRIC_NAMES
+from ptrack_gym.robots import profile_for_env_id
 from train.envs import check_env_kwargs, env_kwargs
 from train.episode import SB3_PREFIX, EpisodeSettings, Task
 
@@ -73,6 +74,8 @@ class EvalConfig:
     """Start mode of the env ("on_path" or "rest_near_path")."""
     reference: str = "computed_torque"
     """Controller the paired differences are taken against."""
+    gains: str = "default"
+    """Gains of the model-based controllers: "default" or "tuned" (``agents/tuned``)."""
     metric: str = "path_dist_rms"
     """Main metric of the summary and the robustness plot."""
     failure_distance_rad: float = 0.5
@@ -133,6 +136,13 @@ class EvalConfig:
             raise InvalidConfigError(f"backend must be 'process' or 'ray', got {self.backend!r}")
         if self.reference not in self.controllers:
             raise InvalidConfigError(f"reference {self.reference!r} is not among the controllers")
+        if self.gains not in GAIN_CHOICES:
+            raise InvalidConfigError(f"gains must be one of {GAIN_CHOICES}, got {self.gains!r}")
+        if self.gains == "tuned":
+            robot = profile_for_env_id(self.env_id).name
+            for c in self.controllers:
+                if not c.startswith(SB3_PREFIX):
+                    tuned_rates(robot, c)  # raises naming the missing file
         if self.backend == "ray":
             require_extra("ray", "ray", "backend: ray")
         if self.video:
@@ -146,6 +156,7 @@ class EvalConfig:
             start=self.start,
             failure_distance_rad=self.failure_distance_rad,
             recovery_threshold_rad=self.recovery_threshold_rad,
+            gains=self.gains,
         )
 
     def tasks(self) -> list[Task]:

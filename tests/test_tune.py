@@ -1,0 +1,130 @@
+"""``python -m train.tune``: a tiny study runs, resumes, refuses seeds the test config uses,
+and the gains it saves are the ones ``gains="tuned"`` builds."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+pytest.importorskip("optuna", reason="tuning needs the 'tune' extra")
+
+import agents.registry as registry
+from agents import computed_torque, make_controller
+from agents.base import ControlContext
+from ptrack_gym.errors import InvalidConfigError
+from train.tune import TuneConfig, load_config, main, tune
+
+ENV = "ptrack_gym/TwoLinkTrack-v0"
+
+
+def tiny(out: Path, **kw: object) -> TuneConfig:
+    """Two trials of computed torque on the two-link: 1-s episodes at 250 Hz."""
+    base: dict[str, object] = dict(
+        env_id=ENV,
+        controllers=["computed_torque"],
+        trials=2,
+        startup_trials=1,
+        validation_seeds=[1000],
+        disturbances=["none", "impulse"],
+        episode_s=1.0,
+        control_hz=250.0,
+        workers=1,
+        out=str(out),
+    )
+    base.update(kw)
+    return TuneConfig(**base)  # type: ignore[arg-type]
+
+
+def _trials(out: Path) -> list:
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    storage = JournalStorage(JournalFileBackend(str(out / "optuna.journal")))
+    return optuna.load_study(study_name="computed_torque", storage=storage).trials
+
+
+def test_tiny_study_runs_resumes_and_its_saved_gains_load(tmp_path, monkeypatch):
+    out, saved = tmp_path / "study", tmp_path / "tuned"
+    first = tune(tiny(out), progress=False)["computed_torque"]
+    assert first["trials"] == 2
+    assert np.isfinite(first["error_rad"]) and first["error_rad"] > 0
+    assert first["effort"] <= first["effort_budget"]
+    before = [t.params for t in _trials(out)]
+
+    with pytest.raises(InvalidConfigError, match="--resume"):
+        tune(tiny(out, trials=3), progress=False)
+    with pytest.raises(InvalidConfigError, match="different study"):
+        tune(tiny(out, trials=3, episode_s=2.0), resume=True, progress=False)
+
+    best = tune(tiny(out, trials=3), resume=True, save_dir=saved, progress=False)
+    trials = _trials(out)
+    assert len(trials) == 3  # two kept, one new
+    assert [t.params for t in trials[:2]] == before
+    assert all(t.constraints for t in trials)  # the effort constraint reaches the sampler
+
+    rates = best["computed_torque"]["rates"]
+    monkeypatch.setattr(registry, "TUNED_DIR", saved)
+    assert registry.tuned_rates("two_link", "computed_torque") == rates
+    env = gym.make(ENV, control_hz=250.0)
+    try:
+        env.reset(seed=0)
+        built = make_controller("computed_torque", env, "tuned")
+        expected = computed_torque.gains_from_rates(ControlContext.from_env(env), rates)
+        assert built.gains == expected
+        default = make_controller("computed_torque", env, "default")
+        assert built.gains != default.gains
+    finally:
+        env.close()
+
+
+def test_an_interrupted_trial_is_failed_and_replaced_on_resume(tmp_path):
+    out = tmp_path / "study"
+    tune(tiny(out, trials=1), progress=False)
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    storage = JournalStorage(JournalFileBackend(str(out / "optuna.journal")))
+    optuna.load_study(study_name="computed_torque", storage=storage).ask()  # never told
+    tune(tiny(out, trials=2), resume=True, progress=False)
+    states = [t.state.name for t in _trials(out)]
+    assert states == ["COMPLETE", "FAIL", "COMPLETE"]
+
+
+def test_validation_seeds_that_the_test_config_uses_are_refused(tmp_path):
+    # the main job uses seeds 0..4 (reset seeds 0, 10 000, ...): seed 2 is one of them
+    with pytest.raises(InvalidConfigError, match="test config"):
+        tune(tiny(tmp_path, validation_seeds=[1000, 2]), progress=False)
+    assert not (tmp_path / "optuna.journal").exists()  # refused before anything ran
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "match"),
+    [
+        ("controllers", ["residual"], "controllers"),
+        ("controllers", [], "controllers"),
+        ("disturbances", ["wind"], "disturbances"),
+        ("trials", 0, "trials"),
+        ("validation_seeds", [], "validation_seeds"),
+        ("effort_budget", -0.1, "effort_budget"),
+        ("effort_budget", float("nan"), "effort_budget"),
+        ("env_id", "ptrack_gym/Nope-v0", "Nope"),
+        ("test_config", "missing.yml", "does not exist"),
+    ],
+)
+def test_bad_configs_fail_before_any_episode(tmp_path, field, value, match):
+    with pytest.raises(InvalidConfigError, match=match):
+        tune(tiny(tmp_path, **{field: value}), progress=False)
+    assert not (tmp_path / "optuna.journal").exists()
+
+
+def test_cli_refuses_unknown_keys(capsys):
+    with pytest.raises(SystemExit):
+        main(["--set", "trails=3"])
+    assert "unknown config key" in capsys.readouterr().err
+    with pytest.raises(InvalidConfigError, match="key=value"):
+        load_config(None, ["trials"])

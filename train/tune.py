@@ -1,0 +1,351 @@
+"""Equal-budget tuning of a model-based controller's gains: ``python -m train.tune``.
+
+One Optuna study per robot × controller, the same settings for every controller:
+
+* parameters — the controller's rates (``agents.registry.TUNABLE``: a bandwidth and a
+  damping or phase rate each, four rates for the passivity law), made absolute by the
+  controller's own ``gains_from_rates`` exactly as its defaults are;
+* sampler — TPE, seeded, ``startup_trials`` random trials first; ``trials`` per study;
+* objective — the mean path-distance RMS (rad) over ``validation_seeds`` × ``disturbances``
+  (each preset at level 1, started on the path); a failed episode (unstable, or the path
+  distance past ``failure_distance_rad``) counts with its padded RMS, so failures are
+  penalised;
+* constraint — the mean dynamic effort (``tau_dyn_rms_frac``: the RMS of (τ − g(q))/τ_max,
+  the effort beyond holding the arm up, which is the same for every controller) must stay
+  ≤ the budget: ``effort_budget`` if given, else ``effort_factor`` × what
+  ``effort_reference`` (computed torque) uses with its default gains on the same validation
+  episodes — one budget per robot, the same for every controller; TPE samples with the
+  constraint and the best *feasible* trial wins;
+* validation seeds must not meet the test seeds of ``test_config`` (the main job's): the
+  tuned gains are chosen on other episodes than those they are judged on.
+
+Resumable (``--resume``: the study lives in ``<out>/optuna.journal``), the episodes of a
+trial run in ``workers`` processes, progress is printed per trial. ``--save`` writes the
+best rates with the study's settings to ``agents/tuned/<robot>-<controller>.yml``, which
+``make_controller(..., gains="tuned")`` and every entry point's ``gains: tuned`` read.
+Needs the ``tune`` extra (Optuna).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import math
+import os
+import sys
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+import ptrack_gym  # noqa: F401  (registers the envs)
+from agents.registry import TUNABLE, TUNED_DIR
+from ptrack_gym.disturbances import PRESETS
+from ptrack_gym.errors import InvalidConfigError, PtrackError
+from ptrack_gym.robots import profile_for_env_id
+from train.episode import EpisodeSettings, Task, run_episode
+
+DEFAULT_TEST_CONFIG = Path(__file__).parent / "configs" / "main.yml"
+
+
+@dataclass
+class TuneConfig:
+    """A tuning study (the fields of ``--config`` / ``--set``)."""
+
+    env_id: str = "ptrack_gym/IiwaTrack-v0"
+    """Registered env id."""
+    controllers: list[str] = field(default_factory=lambda: ["passivity"])
+    """Controllers to tune, one study each (keys of ``agents.registry.TUNABLE``)."""
+    trials: int = 40
+    """Trials per study (the same for every controller)."""
+    startup_trials: int = 10
+    """Random trials before TPE models the objective."""
+    seed: int = 0
+    """Seed of the sampler."""
+    validation_seeds: list[int] = field(default_factory=lambda: [1000, 1001, 1002])
+    """Seeds of the validation episodes (reset seed 10 000·seed + episode, as in evaluation)."""
+    disturbances: list[str] = field(
+        default_factory=lambda: ["none", "impulse", "periodic", "payload"]
+    )
+    """Conditions of the objective: each preset at level 1 ("none" undisturbed)."""
+    episode_s: float = 6.0
+    """Episode length (s)."""
+    control_hz: float = 1000.0
+    """Control rate (Hz)."""
+    effort_budget: float | None = None
+    """Largest mean dynamic effort (``tau_dyn_rms_frac``) a feasible trial may use; None:
+    ``effort_factor`` × the reference controller's with its default gains."""
+    effort_reference: str = "computed_torque"
+    """The controller whose default effort sets the budget (when ``effort_budget`` is None)."""
+    effort_factor: float = 1.25
+    """The budget as a multiple of the reference's default effort."""
+    failure_distance_rad: float = 0.5
+    """An episode fails past this path distance (rad), or when unstable."""
+    test_config: str = str(DEFAULT_TEST_CONFIG)
+    """The evaluation config whose seeds the validation seeds must avoid."""
+    workers: int = 0
+    """Worker processes (0: the usable cores)."""
+    out: str = "results/tune"
+    """Output folder (a subfolder per controller)."""
+
+    def validate(self) -> None:
+        """Raise :class:`InvalidConfigError` naming the first bad field, before any episode."""
+        profile_for_env_id(self.env_id)
+        bad = [c for c in self.controllers if c not in TUNABLE]
+        if not self.controllers or bad:
+            raise InvalidConfigError(
+                f"controllers must be some of {sorted(TUNABLE)}, got {self.controllers}"
+            )
+        unknown = [d for d in self.disturbances if d not in PRESETS]
+        if not self.disturbances or unknown:
+            raise InvalidConfigError(f"disturbances must be presets of {list(PRESETS)}")
+        if self.trials < 1 or not 0 <= self.startup_trials:
+            raise InvalidConfigError("trials must be >= 1 and startup_trials >= 0")
+        if not self.validation_seeds:
+            raise InvalidConfigError("validation_seeds must not be empty")
+        if self.effort_budget is not None and not (
+            math.isfinite(self.effort_budget) and self.effort_budget > 0
+        ):
+            raise InvalidConfigError(f"effort_budget must be positive, got {self.effort_budget}")
+        if self.effort_reference not in TUNABLE or not self.effort_factor > 0:
+            raise InvalidConfigError("effort_reference must be a controller, effort_factor > 0")
+        if not self.episode_s > 0:
+            raise InvalidConfigError("episode_s must be positive")
+        test = test_reset_seeds(Path(self.test_config))
+        overlap = sorted(set(self.reset_seeds()) & test)
+        if overlap:
+            raise InvalidConfigError(
+                f"validation seeds {self.validation_seeds} give reset seeds {overlap[:5]} that "
+                f"the test config {self.test_config} uses: tune on other episodes"
+            )
+
+    def reset_seeds(self) -> list[int]:
+        """The validation episodes' reset seeds (one episode per seed)."""
+        return [Task("x", "none", 0.0, s, 0).reset_seed for s in self.validation_seeds]
+
+    def tasks(self, controller: str) -> list[Task]:
+        return [
+            Task(controller, d, 0.0 if d == "none" else 1.0, s, 0)
+            for d in self.disturbances
+            for s in self.validation_seeds
+        ]
+
+
+def test_reset_seeds(config: Path) -> set[int]:
+    """Every reset seed of the evaluation config ``config``."""
+    from train.evaluate import load_config
+
+    if not config.exists():
+        raise InvalidConfigError(f"test_config {config} does not exist")
+    cfg = load_config(config, [])
+    return {t.reset_seed for t in cfg.tasks()}
+
+
+def _run(args: tuple[Task, EpisodeSettings]) -> dict[str, Any]:
+    return run_episode(*args)[0]
+
+
+def tune(
+    cfg: TuneConfig,
+    resume: bool = False,
+    save_dir: Path | None = None,
+    progress: bool = True,
+) -> dict[str, dict[str, Any]]:
+    """Run (or continue) one study per controller; return {controller: best result}.
+
+    ``save_dir`` (``--save``: :data:`agents.registry.TUNED_DIR`) receives the best rates of
+    each controller as ``<robot>-<controller>.yml``, with the study's settings.
+
+    Raises:
+        InvalidConfigError: a bad config (before any episode), an existing study without
+            ``resume``, a resumed study with other settings, or no trial within the budget.
+    """
+    try:
+        import optuna
+        from optuna.storages import JournalStorage
+        from optuna.storages.journal import JournalFileBackend
+    except ImportError as exc:
+        raise InvalidConfigError(
+            "tuning needs the 'tune' extra: pip install 'ptrack_gym[tune]'"
+        ) from exc
+    cfg.validate()
+    out = Path(cfg.out)
+    robot = profile_for_env_id(cfg.env_id).name
+    journal = out / "optuna.journal"
+    if journal.exists() and not resume:
+        raise InvalidConfigError(
+            f"{journal} exists: pass --resume to continue it, or another --out"
+        )
+    saved = out / "config.yml"
+    settings_dict = _settings(cfg)
+    if resume and saved.exists():
+        old = yaml.safe_load(saved.read_text())
+        changed = [k for k, v in settings_dict.items() if k != "trials" and old.get(k) != v]
+        if changed:
+            raise InvalidConfigError(f"--resume with a different study: {changed}")
+    out.mkdir(parents=True, exist_ok=True)
+    saved.write_text(yaml.safe_dump(settings_dict, sort_keys=False))
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    storage = JournalStorage(JournalFileBackend(str(journal)))
+    import multiprocessing as mp
+
+    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(name, "1")
+    workers = cfg.workers or len(os.sched_getaffinity(0))
+    results: dict[str, dict[str, Any]] = {}
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+        budget = cfg.effort_budget
+        if budget is None:
+            budget = cfg.effort_factor * _default_effort(pool, cfg)
+            if progress:
+                print(f"effort budget {budget:.4f} ({cfg.effort_factor} x "
+                      f"{cfg.effort_reference}'s default effort)", flush=True)  # fmt: skip
+        for controller in cfg.controllers:
+            t0 = time.perf_counter()
+            best = _study(optuna, storage, pool, cfg, controller, budget, progress)
+            best["wall_s"] = round(time.perf_counter() - t0, 1)
+            results[controller] = best
+            (out / f"{controller}.yml").write_text(yaml.safe_dump(best, sort_keys=False))
+            if save_dir is not None:
+                save_dir.mkdir(parents=True, exist_ok=True)
+                record = {"rates": best["rates"], "study": {**settings_dict, **best}}
+                path = save_dir / f"{robot}-{controller}.yml"
+                path.write_text(
+                    f"# Tuned by python -m train.tune ({datetime.date.today()}); see "
+                    f"train/tune.py for the objective.\n" + yaml.safe_dump(record, sort_keys=False)
+                )
+    return results
+
+
+def _default_effort(pool: ProcessPoolExecutor, cfg: TuneConfig) -> float:
+    """The reference controller's mean dynamic effort with its default gains."""
+    settings = EpisodeSettings(
+        cfg.env_id, cfg.episode_s, cfg.control_hz, "on_path", cfg.failure_distance_rad, 0.01
+    )
+    rows = pool.map(_run, [(t, settings) for t in cfg.tasks(cfg.effort_reference)])
+    return float(np.mean([r["tau_dyn_rms_frac"] for r in rows]))
+
+
+def _settings(cfg: TuneConfig) -> dict[str, Any]:
+    d = dataclasses.asdict(cfg)
+    for k in ("workers", "out", "controllers"):
+        d.pop(k)
+    return d
+
+
+def _study(
+    optuna: Any,
+    storage: Any,
+    pool: ProcessPoolExecutor,
+    cfg: TuneConfig,
+    controller: str,
+    budget: float,
+    progress: bool,
+) -> dict[str, Any]:
+    space = TUNABLE[controller]
+
+    sampler = optuna.samplers.TPESampler(seed=cfg.seed, n_startup_trials=cfg.startup_trials)
+    study = optuna.create_study(
+        study_name=controller, storage=storage, sampler=sampler, direction="minimize",
+        load_if_exists=True,
+    )  # fmt: skip
+    running = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,))
+    for stale in running:  # an interrupted trial
+        study.tell(stale.number, state=optuna.trial.TrialState.FAIL)
+    complete = optuna.trial.TrialState.COMPLETE
+    done = len(study.get_trials(deepcopy=False, states=(complete,)))
+    tasks = cfg.tasks(controller)
+    while done < cfg.trials:
+        trial = study.ask()
+        rates = {
+            name: trial.suggest_float(name, low, high, log=log)
+            for name, (low, high, log) in space.items()
+        }
+        settings = EpisodeSettings(
+            cfg.env_id, cfg.episode_s, cfg.control_hz, "on_path", cfg.failure_distance_rad,
+            0.01, gains=tuple(sorted(rates.items())),
+        )  # fmt: skip
+        rows = list(pool.map(_run, [(t, settings) for t in tasks]))
+        error = float(np.mean([r["path_dist_rms"] for r in rows]))
+        effort = float(np.mean([r["tau_dyn_rms_frac"] for r in rows]))
+        failures = int(sum(r["failed"] for r in rows))
+        trial.set_user_attr("effort", effort)
+        trial.set_user_attr("failures", failures)
+        trial.set_constraint("effort", effort - budget)  # feasible when <= 0
+        study.tell(trial, error)
+        done += 1
+        if progress:
+            feasible = "feasible" if effort <= budget else "over budget"
+            print(
+                f"{controller} trial {done}/{cfg.trials}: error {error:.3e} rad, effort "
+                f"{effort:.4f} ({feasible}), failures {failures}, "
+                + ", ".join(f"{k}={v:.3g}" for k, v in rates.items()),
+                flush=True,
+            )
+    trials = study.get_trials(deepcopy=False, states=(complete,))[: cfg.trials]
+    feasible = [t for t in trials if t.user_attrs["effort"] <= budget]
+    if not feasible:
+        raise InvalidConfigError(f"{controller}: no trial met the effort budget {budget:.4g}")
+    best = min(feasible, key=lambda t: t.value)
+    return {
+        "controller": controller,
+        "rates": {k: float(v) for k, v in best.params.items()},
+        "error_rad": float(best.value),
+        "effort": float(best.user_attrs["effort"]),
+        "failures": int(best.user_attrs["failures"]),
+        "trial": int(best.number),
+        "trials": len(trials),
+        "feasible_trials": len(feasible),
+        "effort_budget": float(budget),
+    }
+
+
+def load_config(path: Path | None, overrides: Sequence[str]) -> TuneConfig:
+    """The config of a YAML file, with ``key=value`` overrides; unknown keys raise."""
+    data: dict[str, Any] = yaml.safe_load(path.read_text()) if path is not None else {}
+    for item in overrides:
+        if "=" not in item:
+            raise InvalidConfigError(f"--set expects key=value, got {item!r}")
+        key, value = item.split("=", 1)
+        data[key.strip()] = yaml.safe_load(value)
+    known = {f.name for f in dataclasses.fields(TuneConfig)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise InvalidConfigError(f"unknown config key(s) {unknown}; known: {sorted(known)}")
+    return TuneConfig(**data)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m train.tune", description=__doc__.splitlines()[0]
+    )
+    parser.add_argument("--config", type=Path, help="YAML config (fields of TuneConfig)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--out", help="output folder")
+    parser.add_argument("--resume", action="store_true", help="continue the study in --out")
+    parser.add_argument("--save", action="store_true", help="write agents/tuned/<robot>-<c>.yml")
+    parser.add_argument("--no-progress", action="store_true")
+    args = parser.parse_args(argv)
+    try:
+        overrides = list(args.set) + ([f"out={args.out}"] if args.out else [])
+        results = tune(
+            load_config(args.config, overrides),
+            args.resume,
+            TUNED_DIR if args.save else None,
+            not args.no_progress,
+        )
+    except PtrackError as exc:
+        parser.error(str(exc))
+    for controller, best in results.items():
+        print(f"{controller}: {best}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
