@@ -82,8 +82,8 @@ DEFAULT_RATES: dict[str, Any] = {
 #: What ``python -m train.tune`` searches: rate → (low, high, log scale); the rest (the
 #: inertia floor, the re-synchronisation, the remedy) stays the robot's.
 TUNABLE = {
-    "omega": (5.0, 40.0, True),
-    "omega_s": (5.0, 40.0, True),
+    "omega": (3.0, 100.0, True),
+    "omega_s": (3.0, 100.0, True),
     "rho": (2.0, 40.0, True),
     "lam": (0.5, 10.0, True),
 }

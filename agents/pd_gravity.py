@@ -38,7 +38,7 @@ NAME = "pd_gravity"
 #: Generic default rates: ω (rad/s), ζ.
 DEFAULT_RATES = {"omega": 20.0, "zeta": 1.0}
 #: What ``python -m train.tune`` searches: rate → (low, high, log scale).
-TUNABLE = {"omega": (3.0, 60.0, True), "zeta": (0.5, 2.0, False)}
+TUNABLE = {"omega": (3.0, 100.0, True), "zeta": (0.5, 2.0, False)}
 
 
 @dataclass(frozen=True)

@@ -61,7 +61,7 @@ NAME = "slotine_li"
 #: Generic default rates: ω (rad/s).
 DEFAULT_RATES = {"omega": 20.0, "kd_ratio": 1.0}
 #: What ``python -m train.tune`` searches: rate → (low, high, log scale).
-TUNABLE = {"omega": (3.0, 60.0, True), "kd_ratio": (0.25, 4.0, True)}
+TUNABLE = {"omega": (3.0, 100.0, True), "kd_ratio": (0.25, 4.0, True)}
 
 
 @dataclass(frozen=True)

@@ -36,12 +36,15 @@ def search(tmp_path_factory):
 
 
 def test_search_finds_a_worse_push_than_the_median_random_one(search) -> None:
-    df = pd.read_csv(search / "trials.csv")
+    df = pd.read_csv(search / "trials.csv", float_precision="round_trip")
     assert len(df) == 32  # 16 searched + 16 random
     searched = df[df["kind"] == "search"]["cost_rad"]
     random = df[df["kind"] == "random"]["cost_rad"]
     assert searched.max() > random.median()
     assert (df["work_j"] > 0).any()  # the delivered work is recorded
+    summary = pd.read_csv(search / "summary.csv", float_precision="round_trip")
+    assert summary.loc[0, "worst_search_rad"] == searched.max()
+    assert summary.loc[0, "median_random_rad"] == random.median()
     for name in ("summary.md", "adversary.png", "worst.yml", "config.yml", "optuna.journal"):
         assert (search / name).stat().st_size > 0, name
 
@@ -64,9 +67,9 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
     with pytest.raises(InvalidConfigError, match="different search"):
         run_search(load_config(None, [*TINY, "budget=20", "seed=3", f"out={out}"]), resume=True)
     run_search(load_config(None, [*TINY, "budget=20", f"out={out}"]), resume=True, progress=False)
-    df = pd.read_csv(out / "trials.csv")
+    df = pd.read_csv(out / "trials.csv", float_precision="round_trip")
     assert len(df) == 40
-    first = pd.read_csv(search / "trials.csv")
+    first = pd.read_csv(search / "trials.csv", float_precision="round_trip")
     kept = df[df["trial"] < 16].sort_values(["kind", "trial"]).reset_index(drop=True)
     pd.testing.assert_series_equal(
         kept["cost_rad"], first.sort_values(["kind", "trial"]).reset_index(drop=True)["cost_rad"]
@@ -84,6 +87,7 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
         ("push_links=[no_such_link]", "no link 'no_such_link'"),
         ("energy_mode=kinetic", "energy_mode"),
         ("onset_s=[2.0, 1.0]", "onset_s"),
+        ("gains=fancy", "gains"),
     ],
 )
 def test_bad_input_is_refused_before_any_episode(tmp_path, override, match, capsys) -> None:
@@ -97,6 +101,18 @@ def test_bad_input_is_refused_before_any_episode(tmp_path, override, match, caps
               "--out", str(tmp_path / "y")])  # fmt: skip
     assert exc.value.code == 2
     assert not (tmp_path / "y").exists()
+
+
+def test_tuned_gains_that_do_not_exist_are_refused_before_any_episode(
+    tmp_path, monkeypatch
+) -> None:
+    import agents.registry
+
+    monkeypatch.setattr(agents.registry, "TUNED_DIR", tmp_path / "none")
+    cfg = load_config(None, [*TINY, "budget=4", "gains=tuned", f"out={tmp_path / 'x'}"])
+    with pytest.raises(InvalidConfigError, match="no tuned gains for pd_gravity"):
+        run_search(cfg, progress=False)
+    assert not (tmp_path / "x").exists()
 
 
 def test_unknown_config_keys_are_refused() -> None:

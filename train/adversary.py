@@ -48,7 +48,7 @@ import yaml
 
 import ptrack_gym  # noqa: F401  (registers the envs)
 from agents.policy import ControllerPolicy
-from agents.registry import CONTROLLER_NAMES, make_controller
+from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, make_controller, tuned_rates
 from ptrack_gym.errors import InvalidConfigError, PtrackError
 from ptrack_gym.robots import profile_for_env_id
 from train.episode import rollout
@@ -67,6 +67,8 @@ class AdversaryConfig:
         default_factory=lambda: ["passivity", "computed_torque", "pd_gravity", "slotine_li"]
     )
     """Controller names of ``agents.registry``."""
+    gains: str = "default"
+    """The controllers' gains: "default" or "tuned" (``agents/tuned``, ``train.tune``)."""
     families: list[str] = field(default_factory=lambda: ["impulse"])
     """Disturbance families searched (:data:`FAMILIES`)."""
     energies_j: list[float] = field(default_factory=lambda: [2.0])
@@ -111,6 +113,12 @@ class AdversaryConfig:
             raise InvalidConfigError(
                 f"controllers must be names of {list(CONTROLLER_NAMES)}, got {self.controllers}"
             )
+        if self.gains not in GAIN_CHOICES:
+            raise InvalidConfigError(f"gains must be one of {GAIN_CHOICES}, got {self.gains!r}")
+        if self.gains == "tuned":
+            robot = profile_for_env_id(self.env_id).name
+            for c in self.controllers:
+                tuned_rates(robot, c)  # raises naming the missing file
         bad = [f for f in self.families if f not in FAMILIES]
         if not self.families or bad:
             raise InvalidConfigError(
@@ -248,8 +256,10 @@ def evaluate(
     window: tuple[float, float],
     control_hz: float,
     failure_distance_rad: float,
+    gains: str | dict[str, Any] = "default",
 ) -> Outcome:
-    """One episode of ``controller`` under ``spec`` from ``reset_seed``; deterministic."""
+    """One episode of ``controller`` (with ``gains``) under ``spec`` from ``reset_seed``;
+    deterministic."""
     steps = round(episode_s * control_hz)
     env = gym.make(
         env_id,
@@ -259,7 +269,7 @@ def evaluate(
         max_episode_steps=steps,
     )
     try:
-        policy = ControllerPolicy(env, make_controller(controller, env))
+        policy = ControllerPolicy(env, make_controller(controller, env, gains))
         record, _ = rollout(env, policy, reset_seed)
     finally:
         env.close()
@@ -280,6 +290,14 @@ def evaluate(
 
 def _evaluate_task(args: tuple[Any, ...]) -> Outcome:
     return evaluate(*args)
+
+
+def controller_gains(cfg: AdversaryConfig, controller: str) -> str | dict[str, Any]:
+    """The gains argument of ``controller``'s episodes: "default", or the tuned rates
+    themselves (recorded in ``worst.yml``, so a replay does not depend on a later tuning)."""
+    if cfg.gains == "tuned":
+        return tuned_rates(profile_for_env_id(cfg.env_id).name, controller)
+    return cfg.gains
 
 
 def study_name(controller: str, family: str, energy_j: float, kind: str) -> str:
@@ -377,7 +395,7 @@ def _run_study(
         specs = [target.spec(target.space(trial)) for trial in batch]
         tasks = [
             (cfg.env_id, controller, spec, cfg.reset_seed, target.episode_s(), target.window(spec),
-             cfg.control_hz, cfg.failure_distance_rad)
+             cfg.control_hz, cfg.failure_distance_rad, controller_gains(cfg, controller))
             for spec in specs
         ]  # fmt: skip
         for trial, spec, outcome in zip(batch, specs, pool.map(_evaluate_task, tasks), strict=True):
@@ -423,14 +441,16 @@ def _write_results(
                             "unstable": best.user_attrs["unstable"],
                             "work_j": best.user_attrs["work_j"],
                             "spec": best.user_attrs["spec"],
+                            "gains": controller_gains(cfg, controller),
                         }
     df = pd.DataFrame(rows)
-    df.to_csv(out / "trials.csv", index=False)
+    df.to_csv(out / "trials.csv", index=False, float_format="%.17g")
     replay = {
         "env_id": cfg.env_id, "reset_seed": cfg.reset_seed, "control_hz": cfg.control_hz,
         "replay": f"python -m train.adversary --replay {out / 'worst.yml'}", "worst": worst,
     }  # fmt: skip
     (out / "worst.yml").write_text(yaml.safe_dump(replay, sort_keys=False))
+    summary_frame(df).to_csv(out / "summary.csv", index=False, float_format="%.17g")
     table = summary_table(df)
     (out / "summary.md").write_text(
         f"{table}\n\nSearch wall time {wall_s:.0f} s ({cfg.budget} searched + {cfg.budget} "
@@ -438,6 +458,27 @@ def _write_results(
     )
     print(table)
     _plot(df, out / "adversary.png")
+
+
+def summary_frame(df: Any) -> Any:
+    """Per controller × family × energy (a DataFrame, ``summary.csv``): the worst searched
+    and the median and worst random cost (rad), their ratio, the unstable episodes of each
+    kind, and the range of the work the disturbance really did (J)."""
+    import pandas as pd
+
+    rows = []
+    for (controller, family, energy), g in df.groupby(["controller", "family", "energy_j"]):
+        s, r = g[g["kind"] == "search"], g[g["kind"] == "random"]
+        worst, med = float(s["cost_rad"].max()), float(r["cost_rad"].median())
+        rows.append(
+            {"controller": controller, "family": family, "energy_j": float(energy),
+             "worst_search_rad": worst, "median_random_rad": med,
+             "worst_random_rad": float(r["cost_rad"].max()), "worst_over_median": worst / med,
+             "unstable_search": int(s["unstable"].sum()), "n_search": len(s),
+             "unstable_random": int(r["unstable"].sum()), "n_random": len(r),
+             "work_min_j": float(g["work_j"].min()), "work_max_j": float(g["work_j"].max())}
+        )  # fmt: skip
+    return pd.DataFrame(rows)
 
 
 def summary_table(df: Any) -> str:
@@ -494,7 +535,7 @@ def replay(worst_yml: Path, controller: str, family: str, energy_j: float) -> Ou
     spec = entry["spec"]
     return evaluate(
         cfg.env_id, controller, spec, cfg.reset_seed, target.episode_s(), target.window(spec),
-        cfg.control_hz, cfg.failure_distance_rad,
+        cfg.control_hz, cfg.failure_distance_rad, entry.get("gains", cfg.gains),
     )  # fmt: skip
 
 

@@ -77,7 +77,10 @@ class EvalConfig:
     gains: str = "default"
     """Gains of the model-based controllers: "default" or "tuned" (``agents/tuned``)."""
     metric: str = "path_dist_rms"
-    """Main metric of the summary and the robustness plot."""
+    """Main metric of the summary, the report and the robustness plot."""
+    worst_case: list[str] = field(default_factory=list)
+    """Folders of adversarial searches (``python -m train.adversary``) whose worst-case
+    table ``report.md`` shows beside the sweep's."""
     failure_distance_rad: float = 0.5
     """An episode fails if the path distance ever exceeds this (rad), or it goes unstable."""
     recovery_threshold_rad: float = 0.01

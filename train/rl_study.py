@@ -300,7 +300,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
     )
     df = load_frame(out / "episodes.csv")
     curves = curve_frame(df, runs)
-    curves.to_csv(out / "learning_curves.csv", index=False)
+    curves.to_csv(out / "learning_curves.csv", index=False, float_format="%.17g")
     baselines = {
         dist: gd[~gd["controller"].str.startswith("sb3:")]
         .groupby("controller")["path_dist_rms"]

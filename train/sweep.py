@@ -150,7 +150,7 @@ def run_sweep(
 
 #: Config fields that do not change any episode's numbers: a resume may change them.
 _RUN_ONLY_FIELDS = ("out", "workers", "backend", "ray_address", "plots", "video",
-                    "bootstrap_resamples", "reference")  # fmt: skip
+                    "bootstrap_resamples", "reference", "worst_case")  # fmt: skip
 
 
 def _check_same_sweep(cfg: EvalConfig, saved: Path) -> None:
@@ -185,9 +185,12 @@ def _finish(cfg: EvalConfig, out: Path, show: bool = True) -> None:
     keys["level"] = df["level"].map(lambda v: f"{v:g}")
     df = df[[tuple(r) in wanted for r in keys.itertuples(index=False)]]
     summary = summarize(df, cfg.metric, cfg.reference, cfg.bootstrap_resamples)
-    summary.to_csv(out / "summary.csv", index=False)
+    summary.to_csv(out / "summary.csv", index=False, float_format="%.17g")
     table = format_table(summary, cfg.metric)
     (out / "summary.md").write_text(table + "\n")
+    from train.report import write_report
+
+    write_report(df, out, cfg.metric, cfg.reference, cfg.worst_case, title=cfg.env_id)
     if show:
         print(table)
     if cfg.plots:

@@ -71,7 +71,7 @@ class TuneConfig:
     validation_seeds: list[int] = field(default_factory=lambda: [1000, 1001, 1002])
     """Seeds of the validation episodes (reset seed 10 000·seed + episode, as in evaluation)."""
     disturbances: list[str] = field(
-        default_factory=lambda: ["none", "impulse", "periodic", "payload"]
+        default_factory=lambda: ["none", "impulse", "periodic", "payload", "noise"]
     )
     """Conditions of the objective: each preset at level 1 ("none" undisturbed)."""
     episode_s: float = 6.0

@@ -1,0 +1,161 @@
+"""The generated verdict (``train.report``) on constructed results: a difference the seeds
+cannot resolve is marked unresolved, a clear one is marked, the Bonferroni adjustment
+un-resolves what only an unadjusted interval would resolve, and the tail metric is the
+mean of the worst episodes."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from train.report import (
+    aggregate,
+    condition_table,
+    cvar,
+    normalized_scores,
+    paired_comparisons,
+    verdict_paragraph,
+    worst_case_section,
+    write_report,
+)
+
+
+def frame(values: dict[tuple[str, str, float], np.ndarray]) -> pd.DataFrame:
+    """Episodes: (controller, disturbance, level) → metric per seed."""
+    rows = []
+    for (ctrl, dist, level), x in values.items():
+        for seed, v in enumerate(x):
+            rows.append(
+                {"controller": ctrl, "disturbance": dist, "level": level, "seed": seed,
+                 "episode": 0, "path_dist_rms": float(v), "failed": 0}
+            )  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def standardized(n: int, mean: float, sd: float, seed: int) -> np.ndarray:
+    """n values with exactly this sample mean and standard deviation."""
+    z = np.random.default_rng(seed).normal(size=n)
+    z = (z - z.mean()) / z.std(ddof=1)
+    return mean + sd * z
+
+
+REF = np.linspace(1.0, 2.0, 20)
+
+
+def test_a_constructed_tie_is_unresolved_and_clear_differences_are_marked():
+    df = frame({
+        ("ref", "impulse", 1.0): REF,
+        ("tie", "impulse", 1.0): REF + standardized(20, 0.0, 0.05, 1),
+        ("worse", "impulse", 1.0): 2.0 * REF,
+        ("better", "impulse", 1.0): 0.5 * REF,
+    })  # fmt: skip
+    c = paired_comparisons(df, "path_dist_rms", "ref").set_index("controller")
+    assert c.loc["tie", "mark"] == "unresolved"
+    assert c.loc["tie", "ci_low"] < 0 < c.loc["tie", "ci_high"]
+    assert c.loc["worse", "mark"] == "worse" and c.loc["better", "mark"] == "better"
+    assert c.loc["worse", "diff"] == pytest.approx(REF.mean())
+    assert c.loc["better", "ratio"] == pytest.approx(0.5)
+    assert (c["comparisons"] == 3).all()
+    text = verdict_paragraph(c.reset_index(), condition_table(df, "path_dist_rms"), "ref",
+                             "path_dist_rms")  # fmt: skip
+    assert "tie is not resolved in 1" in text
+    assert "worse is farther from it in 1" in text
+    assert "better is closer to the path in 1" in text
+
+
+def test_bonferroni_unresolves_what_one_unadjusted_interval_would_resolve():
+    # paired differences with mean / standard error = 2.24: outside a 95% interval, inside
+    # a (1 - 0.05/40) one
+    shift = standardized(20, 0.5, 1.0, 2)
+    alone = frame({("ref", "impulse", 1.0): REF, ("b", "impulse", 1.0): REF + shift})
+    assert paired_comparisons(alone, "path_dist_rms", "ref")["mark"].item() == "worse"
+    crowd = {("ref", "impulse", 1.0): REF, ("b", "impulse", 1.0): REF + shift}
+    for level in range(2, 41):  # 39 more conditions: K = 40 comparisons
+        crowd[("ref", "periodic", float(level))] = REF
+        crowd[("b", "periodic", float(level))] = REF
+    c = paired_comparisons(frame(crowd), "path_dist_rms", "ref")
+    row = c[c["disturbance"] == "impulse"].iloc[0]
+    assert row["comparisons"] == 40 and row["confidence"] == pytest.approx(1 - 0.05 / 40)
+    assert row["mark"] == "unresolved"
+
+
+def test_comparisons_are_paired_by_seed():
+    # a per-seed offset that the pairing removes: unpaired, b - ref would be lost in the
+    # spread of the seeds; paired, it is exactly +0.01 every time
+    base = np.random.default_rng(3).uniform(0.1, 10.0, 20)
+    df = frame({("ref", "none", 0.0): base, ("b", "none", 0.0): base + 0.01})
+    row = paired_comparisons(df, "path_dist_rms", "ref").iloc[0]
+    assert row["mark"] == "worse"
+    assert row["ci_low"] == pytest.approx(0.01) and row["ci_high"] == pytest.approx(0.01)
+
+
+def test_cvar_is_the_mean_of_the_worst_tenth():
+    assert cvar(np.arange(1.0, 11.0)) == 10.0
+    assert cvar(np.arange(1.0, 21.0)) == 19.5
+    assert cvar(np.array([3.0, np.nan, 1.0])) == 3.0  # ceil(10% of 2) = 1 episode
+    assert np.isnan(cvar(np.array([])))
+
+
+def test_normalized_scores_are_decades_from_the_condition_median():
+    df = frame(
+        {
+            ("a", "none", 0.0): np.full(4, 1e-4),
+            ("b", "none", 0.0): np.full(4, 1e-3),
+            ("a", "impulse", 1.0): np.full(4, 1.0),
+            ("b", "impulse", 1.0): np.full(4, 0.1),
+        }
+    )
+    scores, tasks = normalized_scores(df, "path_dist_rms")
+    assert tasks == ["impulse 1", "undisturbed"]
+    # medians: 0.55 and 5.5e-4
+    np.testing.assert_allclose(scores["a"][0], np.log10([0.55 / 1.0, 5.5e-4 / 1e-4]))
+    np.testing.assert_allclose(scores["b"][0], np.log10([0.55 / 0.1, 5.5e-4 / 1e-3]))
+
+
+def test_without_rliable_the_report_says_how_to_get_the_aggregate(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "rliable", None)  # import rliable raises ImportError
+    df = frame({("ref", "none", 0.0): REF, ("b", "none", 0.0): 2 * REF})
+    assert "optional `report` extra" in aggregate(df, "path_dist_rms", tmp_path)
+    path = write_report(df, tmp_path, "path_dist_rms", "ref", ["missing/folder"], 2000)
+    text = path.read_text()
+    assert "b is farther from it in 1" in text
+    assert "Missing: `missing/folder`" in text
+    assert (tmp_path / "comparisons.csv").exists()
+
+
+def test_aggregate_with_rliable_is_reproducible(tmp_path):
+    pytest.importorskip("rliable", reason="the optional 'report' extra")
+    df = frame(
+        {
+            ("ref", "none", 0.0): REF,
+            ("b", "none", 0.0): 2 * REF,
+            ("ref", "impulse", 1.0): REF,
+            ("b", "impulse", 1.0): 0.9 * REF,
+        }
+    )
+    first = aggregate(df, "path_dist_rms", None, resamples=200)
+    assert aggregate(df, "path_dist_rms", None, resamples=200) == first  # same seed, same CIs
+    with_plot = aggregate(df, "path_dist_rms", tmp_path, resamples=200)
+    assert with_plot.startswith(first) and (tmp_path / "aggregate.png").stat().st_size > 0
+    assert "| ref |" in first and "| b |" in first
+
+
+def test_worst_case_section_reads_a_search_summary(tmp_path):
+    import yaml
+
+    folder = tmp_path / "adv"
+    folder.mkdir()
+    (folder / "config.yml").write_text(yaml.safe_dump({
+        "env_id": "ptrack_gym/IiwaTrack-v0", "families": ["impulse"], "gains": "tuned",
+        "budget": 200, "post_s": 1.5, "failure_distance_rad": 0.5}))  # fmt: skip
+    pd.DataFrame([{
+        "controller": "passivity", "family": "impulse", "energy_j": 2.0,
+        "worst_search_rad": 0.06, "median_random_rad": 0.01, "worst_random_rad": 0.03,
+        "worst_over_median": 6.0, "unstable_search": 0, "n_search": 200,
+        "unstable_random": 0, "n_random": 200, "work_min_j": 0.5, "work_max_j": 3.5,
+    }]).to_csv(folder / "summary.csv", index=False)  # fmt: skip
+    text = worst_case_section([folder])
+    assert "| Iiwa | passivity | 2 | 0.06 | 0.01 | 6.0 | 0/200 | 0/200 | 0.50–3.50 |" in text

@@ -1,0 +1,484 @@
+"""The generated verdict of an evaluation sweep: ``report.md`` in its results folder.
+
+What it holds, per condition (disturbance × level):
+
+* each controller's mean, IQM, **CVaR₁₀** (the mean of its worst 10% episodes,
+  :func:`cvar`) and failures on the sweep's metric;
+* each controller's **paired difference** to the reference (controller − reference, per
+  (seed, episode): the same start and the same disturbance draw), with a percentile-bootstrap
+  interval, and a mark: *better* or *worse* when the interval excludes 0, *unresolved* when
+  it does not.
+
+**Multiple comparisons.** A report makes K = (conditions) × (controllers − 1) comparisons.
+Its intervals are Bonferroni-adjusted: each is a (1 − α/K) interval, so with probability
+≥ 1 − α (α = 5%) every interval of the report covers its true difference at once, and the
+chance that any "resolved" mark is wrong is ≤ α. Bonferroni is conservative: a difference
+marked unresolved may be real but is not shown by these seeds.
+
+Then: a paragraph written from those marks (:func:`verdict_paragraph`), an aggregate over
+conditions with ``rliable`` (IQM with stratified-bootstrap intervals and performance
+profiles of a per-condition normalised score; the optional ``report`` extra), and the
+worst-case table of the adversarial searches named in the config (``worst_case``), read
+from their ``summary.csv`` (``python -m train.adversary``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from train.results import iqm
+
+#: The family-wise error rate of a report's marks.
+ALPHA = 0.05
+#: The fraction of worst episodes the tail metric averages.
+TAIL_FRACTION = 0.1
+_KEY = ["seed", "episode"]
+
+
+def cvar(values: np.ndarray, fraction: float = TAIL_FRACTION) -> float:
+    """CVaR of an error: the mean of the worst (largest) ⌈fraction · n⌉ values; NaN if empty."""
+    x = np.sort(np.asarray(values, dtype=float)[np.isfinite(values)])
+    if x.size == 0:
+        return float("nan")
+    k = max(1, math.ceil(fraction * x.size))
+    return float(np.mean(x[-k:]))
+
+
+def paired_interval(
+    diff: np.ndarray, confidence: float, resamples: int, seed: int
+) -> tuple[float, float]:
+    """Percentile-bootstrap interval of the mean of paired differences at ``confidence``
+    (a point when every difference is equal; NaN for fewer than 2)."""
+    diff = diff[np.isfinite(diff)]
+    if diff.size < 2:
+        return float("nan"), float("nan")
+    if np.ptp(diff) == 0.0:
+        return float(diff[0]), float(diff[0])
+    res = stats.bootstrap(
+        (diff,),
+        np.mean,
+        n_resamples=resamples,
+        confidence_level=confidence,
+        method="percentile",
+        vectorized=True,
+        rng=np.random.default_rng(seed),
+    )
+    return float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def paired_comparisons(
+    df: pd.DataFrame,
+    metric: str,
+    reference: str,
+    alpha: float = ALPHA,
+    resamples: int = 20_000,
+    seed: int = 0,
+) -> pd.DataFrame:
+    """Every controller against ``reference`` in every condition (module docstring).
+
+    Columns: disturbance, level, controller, pairs, reference_mean, mean, diff, ratio
+    (mean / reference_mean), ci_low, ci_high (Bonferroni-adjusted), mark ("better",
+    "worse" — lower is better — or "unresolved"), comparisons (K), confidence.
+    """
+    conditions = (
+        df[["disturbance", "level"]].drop_duplicates().sort_values(["disturbance", "level"])
+    )
+    others = sorted(c for c in df["controller"].unique() if c != reference)
+    k = max(1, len(conditions) * len(others))
+    confidence = 1.0 - alpha / k
+    rows = []
+    for _, (dist, level) in conditions.iterrows():
+        cond = df[(df["disturbance"] == dist) & (df["level"] == level)]
+        ref = cond[cond["controller"] == reference].set_index(_KEY)[metric]
+        for ctrl in others:
+            x = cond[cond["controller"] == ctrl].set_index(_KEY)[metric]
+            common = x.index.intersection(ref.index)
+            diff = x.loc[common].to_numpy(float) - ref.loc[common].to_numpy(float)
+            lo, hi = paired_interval(diff, confidence, resamples, seed)
+            if not (np.isfinite(lo) and np.isfinite(hi)):
+                mark = "unresolved"
+            elif hi < 0:
+                mark = "better"
+            elif lo > 0:
+                mark = "worse"
+            else:
+                mark = "unresolved"
+            ref_mean = float(ref.loc[common].mean()) if len(common) else float("nan")
+            mean = float(x.loc[common].mean()) if len(common) else float("nan")
+            rows.append(
+                {
+                    "disturbance": dist,
+                    "level": float(level),
+                    "controller": ctrl,
+                    "pairs": len(common),
+                    "reference_mean": ref_mean,
+                    "mean": mean,
+                    "diff": float(np.mean(diff)) if len(diff) else float("nan"),
+                    "ratio": mean / ref_mean if ref_mean else float("nan"),
+                    "ci_low": lo,
+                    "ci_high": hi,
+                    "mark": mark,
+                    "comparisons": k,
+                    "confidence": confidence,
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def condition_table(df: pd.DataFrame, metric: str) -> pd.DataFrame:
+    """Per condition × controller: episodes, mean, IQM, CVaR₁₀ and failures of ``metric``."""
+    rows = []
+    for (dist, level, ctrl), g in df.groupby(["disturbance", "level", "controller"], sort=True):
+        x = g[metric].to_numpy(float)
+        rows.append(
+            {
+                "disturbance": dist,
+                "level": float(level),
+                "controller": ctrl,
+                "n": len(x),
+                "mean": float(np.nanmean(x)),
+                "iqm": float(iqm(x[np.isfinite(x)])),
+                "cvar10": cvar(x),
+                "failures": int(g["failed"].sum()),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def _condition_name(dist: str, level: float) -> str:
+    return "undisturbed" if dist == "none" else f"{dist} {level:g}"
+
+
+def verdict_paragraph(
+    comparisons: pd.DataFrame, table: pd.DataFrame, reference: str, metric: str
+) -> str:
+    """One paragraph, written from the marks: per controller, where it is better than,
+    worse than or not resolved from the reference; which controller has the lowest mean and
+    the lowest CVaR₁₀ most often; and the failures."""
+    if comparisons.empty:
+        return f"Only {reference} was evaluated: there is nothing to compare."
+    k = int(comparisons["comparisons"].iloc[0])
+    conditions = comparisons[["disturbance", "level"]].drop_duplicates()
+    n_cond = len(conditions)
+    pairs = int(comparisons["pairs"].min())
+    parts = [
+        f"Against {reference}, over {n_cond} conditions with {pairs} paired episodes each "
+        f"({k} comparisons, Bonferroni-adjusted {100 * (1 - ALPHA):.0f}% simultaneous "
+        f"intervals on the paired difference of {metric}; lower is better):"
+    ]
+    for ctrl, g in comparisons.groupby("controller", sort=True):
+        counts = {m: g[g["mark"] == m] for m in ("better", "worse", "unresolved")}
+        pieces = []
+        for mark, word in (("better", "closer to the path"), ("worse", "farther from it")):
+            sub = counts[mark]
+            if len(sub):
+                names = ", ".join(
+                    _condition_name(d, lv)
+                    for d, lv in zip(sub["disturbance"], sub["level"], strict=True)
+                )
+                med = float(np.median(sub["ratio"]))
+                pieces.append(f"{word} in {len(sub)} ({names}; median ratio of means {med:.2g})")
+        pieces.append(f"not resolved in {len(counts['unresolved'])}")
+        parts.append(f"{ctrl} is " + ", ".join(pieces) + ".")
+    best_mean = table.loc[table.groupby(["disturbance", "level"])["mean"].idxmin(), "controller"]
+    best_tail = table.loc[table.groupby(["disturbance", "level"])["cvar10"].idxmin(), "controller"]
+    lead = best_mean.value_counts()
+    tail = best_tail.value_counts()
+    parts.append(
+        "Lowest mean: "
+        + ", ".join(f"{c} in {n}" for c, n in lead.items())
+        + " of the conditions; lowest CVaR₁₀ (worst 10% of episodes): "
+        + ", ".join(f"{c} in {n}" for c, n in tail.items())
+        + " (point estimates, not marks)."
+    )
+    failures = table.groupby("controller")["failures"].sum()
+    episodes = table.groupby("controller")["n"].sum()
+    failed = [f"{c} {int(failures[c])}/{int(episodes[c])}" for c in failures.index if failures[c]]
+    parts.append("Failed episodes: " + ("; ".join(failed) if failed else "none") + ".")
+    return " ".join(parts)
+
+
+def normalized_scores(df: pd.DataFrame, metric: str) -> tuple[dict[str, np.ndarray], list[str]]:
+    """rliable's score matrices (runs × tasks) per controller: a task is a condition, a run a
+    (seed, episode); score = log₁₀(m_c / x), x the episode's ``metric`` and m_c the median of
+    every controller's episodes in condition c — decades better than the field's median,
+    higher is better, comparable across conditions whose errors differ by decades."""
+    df = df.copy()
+    df["condition"] = [
+        _condition_name(d, lv) for d, lv in zip(df["disturbance"], df["level"], strict=True)
+    ]
+    tasks = sorted(df["condition"].unique())
+    median = df.groupby("condition")[metric].median()
+    floor = 1e-12  # a zero error (never seen) would be an infinite score
+    df["score"] = np.log10(
+        median.loc[df["condition"]].to_numpy() / np.maximum(df[metric].to_numpy(float), floor)
+    )
+    scores = {}
+    for ctrl, g in df.groupby("controller", sort=True):
+        wide = g.pivot_table(index=_KEY, columns="condition", values="score")
+        scores[ctrl] = wide.reindex(columns=tasks).to_numpy(float)
+    return scores, tasks
+
+
+def aggregate(
+    df: pd.DataFrame, metric: str, out: Path | None, resamples: int = 2000, seed: int = 0
+) -> str:
+    """The rliable section: IQM and mean of :func:`normalized_scores` with stratified
+    bootstrap 95% intervals (a markdown table) and, with ``out``, ``aggregate.png`` (the
+    intervals and the performance profiles). Without the ``report`` extra: a sentence
+    saying how to get it."""
+    try:
+        from rliable import library as rly
+        from rliable import metrics as rlm
+    except ImportError:
+        return (
+            "Aggregate scores need the optional `report` extra (rliable): "
+            "`pip install 'ptrack_gym[report]'`, then re-run with `--resume`."
+        )
+    except TypeError as exc:  # rliable 1.2's arch<8 with pandas 3 fails at import
+        return f"Aggregate scores: rliable does not import here ({exc}); it needs pandas<3."
+    scores, tasks = normalized_scores(df, metric)
+    scores = {c: s for c, s in scores.items() if np.isfinite(s).all()}
+    if not scores:
+        return "Aggregate scores: no controller has every condition's episodes."
+
+    def both(x: np.ndarray) -> np.ndarray:
+        return np.array([rlm.aggregate_iqm(x), rlm.aggregate_mean(x)])
+
+    point, interval = _interval_estimates(rly, scores, both, resamples, seed)
+    lines = [
+        f"Score = log₁₀(condition median / episode {metric}) over {len(tasks)} conditions "
+        "(higher is better; 1 = ten times closer to the path than the field's median); "
+        "stratified-bootstrap 95% intervals (rliable).",
+        "",
+        "| controller | IQM | IQM 95% CI | mean | mean 95% CI |",
+        "|---|---:|---|---:|---|",
+    ]
+    for ctrl in sorted(point, key=lambda c: -point[c][0]):
+        p, ci = point[ctrl], interval[ctrl]
+        lines.append(
+            f"| {ctrl} | {p[0]:.3f} | [{ci[0][0]:.3f}, {ci[1][0]:.3f}] | {p[1]:.3f} "
+            f"| [{ci[0][1]:.3f}, {ci[1][1]:.3f}] |"
+        )
+    if out is not None:
+        _aggregate_plot(rly, scores, point, interval, out / "aggregate.png", resamples, seed)
+        lines += ["", "![aggregate](aggregate.png)"]
+    return "\n".join(lines)
+
+
+def _interval_estimates(
+    rly: Any, scores: dict[str, np.ndarray], func: Any, resamples: int, seed: int
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """rliable's ``get_interval_estimates`` (stratified bootstrap over runs, percentile 95%),
+    seeded. rliable 1.2's ``StratifiedBootstrap`` draws its indices from the global
+    ``np.random`` and ignores ``random_state`` (two calls with the same seed differ); here
+    the indices come from the bootstrap's own generator, one ``np.random.Generator`` per
+    controller derived from ``seed``."""
+
+    class Seeded(rly.StratifiedBootstrap):  # type: ignore[misc, name-defined]
+        def update_indices(self) -> tuple[np.ndarray, ...]:
+            indices = self.generator.choice(self._num_items, self._args_shape, replace=True)
+            return (indices, *self._strata_indices)
+
+    point, interval = {}, {}
+    streams = np.random.SeedSequence(seed).spawn(len(scores))
+    for (key, x), stream in zip(sorted(scores.items()), streams, strict=True):
+        bootstrap = Seeded(x, seed=np.random.default_rng(stream))
+        point[key] = func(x)
+        interval[key] = bootstrap.conf_int(func, reps=resamples, size=0.95, method="percentile")
+    return point, interval
+
+
+def _aggregate_plot(
+    rly: Any,
+    scores: dict[str, np.ndarray],
+    point: dict[str, np.ndarray],
+    interval: dict[str, np.ndarray],
+    path: Path,
+    resamples: int,
+    seed: int,
+) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = sorted(point, key=lambda c: point[c][0])
+    color = {c: f"C{i}" for i, c in enumerate(sorted(point))}  # the same in both panels
+    lo = min(float(np.min(s)) for s in scores.values())
+    hi = max(float(np.max(s)) for s in scores.values())
+    taus = np.linspace(lo, hi, 101)
+
+    # rliable's performance profile (the fraction of runs with score > τ, pooled over
+    # tasks) with its stratified-bootstrap bands, seeded (see _interval_estimates).
+    def profile(x: np.ndarray) -> np.ndarray:
+        return np.array([np.mean(x > tau) for tau in taus])
+
+    profiles, profile_ci = _interval_estimates(rly, scores, profile, resamples, seed)
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 3.8))
+    for i, c in enumerate(names):
+        ci = interval[c]
+        ax1.errorbar(
+            point[c][0],
+            i,
+            xerr=[[point[c][0] - ci[0][0]], [ci[1][0] - point[c][0]]],
+            fmt="o",
+            capsize=4,
+            color=color[c],
+        )
+        ax2.plot(taus, profiles[c], label=c, color=color[c])
+        ax2.fill_between(taus, profile_ci[c][0], profile_ci[c][1], color=color[c], alpha=0.2)
+    ax1.set_yticks(range(len(names)), names)
+    ax1.set_xlabel("IQM of the normalised score (95% CI)")
+    ax1.grid(True, alpha=0.3)
+    ax2.set_xlabel("τ: score (decades better than the condition median)")
+    ax2.set_ylabel("fraction of episodes with score > τ")
+    ax2.grid(True, alpha=0.3)
+    ax2.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def worst_case_section(folders: Sequence[str | Path]) -> str:
+    """The worst-case table of the adversarial searches in ``folders`` (their
+    ``summary.csv`` and ``config.yml``), or what is missing and how to make it."""
+    if not folders:
+        return "No adversarial search is named in the config (`worst_case`)."
+    import yaml
+
+    blocks = []
+    lines = [
+        "| robot | controller | energy (J) | worst searched (rad) | median random (rad) "
+        "| worst / median | unstable, searched | unstable, random | delivered work (J) |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for folder in map(Path, folders):
+        summary, config = folder / "summary.csv", folder / "config.yml"
+        if not (summary.exists() and config.exists()):
+            blocks.append(
+                f"Missing: `{folder}` has no search results (run `python -m train.adversary "
+                f"--out {folder}` with its config)."
+            )
+            continue
+        cfg = yaml.safe_load(config.read_text())
+        robot = cfg["env_id"].split("/")[-1].replace("Track-v0", "")
+        s = pd.read_csv(summary)
+        for _, r in s.iterrows():
+            lines.append(
+                f"| {robot} | {r['controller']} | {r['energy_j']:g} | {r['worst_search_rad']:.3g} "
+                f"| {r['median_random_rad']:.3g} | {r['worst_over_median']:.1f} "
+                f"| {r['unstable_search']}/{r['n_search']} "
+                f"| {r['unstable_random']}/{r['n_random']} "
+                f"| {r['work_min_j']:.2f}–{r['work_max_j']:.2f} |"
+            )
+        blocks.append(
+            f"`{folder}`: {cfg['env_id']}, {', '.join(cfg['families'])}, "
+            f"gains {cfg.get('gains', 'default')}, {cfg['budget']} searched + {cfg['budget']} "
+            f"random episodes per row, cost = path-distance RMS over the {cfg['post_s']:g} s "
+            f"after the disturbance (unstable = {cfg['failure_distance_rad']:g} rad)."
+        )
+    return "\n".join(lines) + "\n\n" + "\n".join(f"- {b}" for b in blocks)
+
+
+def worst_case_sentence(folders: Sequence[str | Path]) -> str:
+    """The worst-case verdict, from the searches' ``summary.csv``: per robot and energy, the
+    controller with the lowest worst searched cost, and every controller the search made
+    unstable (with how often)."""
+    parts = []
+    for folder in map(Path, folders):
+        summary = folder / "summary.csv"
+        if not summary.exists():
+            continue
+        import yaml
+
+        env_id = yaml.safe_load((folder / "config.yml").read_text())["env_id"]
+        robot = env_id.split("/")[-1].replace("Track-v0", "")
+        s = pd.read_csv(summary)
+        for (family, energy), g in s.groupby(["family", "energy_j"]):
+            best = g.loc[g["worst_search_rad"].idxmin()]
+            unstable = [
+                f"{r['controller']} {r['unstable_search']}/{r['n_search']}"
+                for _, r in g.iterrows()
+                if r["unstable_search"] or r["unstable_random"]
+            ]
+            parts.append(
+                f"{robot}, {family} {energy:g} J: lowest worst case {best['controller']} "
+                f"({best['worst_search_rad']:.3g} rad); "
+                + ("unstable under search: " + ", ".join(unstable) if unstable else "none unstable")
+            )
+    return ("Worst case — " + "; ".join(parts) + ".") if parts else ""
+
+
+def write_report(
+    df: pd.DataFrame,
+    out: Path,
+    metric: str,
+    reference: str,
+    worst_case: Sequence[str | Path] = (),
+    resamples: int = 20_000,
+    title: str = "",
+) -> Path:
+    """Write ``out/report.md`` (and ``comparisons.csv``, ``aggregate.png``); return its path."""
+    comparisons = paired_comparisons(df, metric, reference, resamples=resamples)
+    comparisons.to_csv(out / "comparisons.csv", index=False, float_format="%.17g")
+    table = condition_table(df, metric)
+    merged = table.merge(
+        comparisons[["disturbance", "level", "controller", "diff", "ci_low", "ci_high", "mark"]],
+        on=["disturbance", "level", "controller"],
+        how="left",
+    )
+    lines = [
+        f"# Verdict{': ' + title if title else ''}",
+        "",
+        " ".join(
+            p
+            for p in (
+                verdict_paragraph(comparisons, table, reference, metric),
+                worst_case_sentence(worst_case),
+            )
+            if p
+        ),
+        "",
+        f"## Per condition ({metric}, rad; paired difference to {reference})",
+        "",
+        "| condition | controller | n | mean | IQM | CVaR₁₀ | failures | diff vs ref | "
+        f"{100 * (1 - ALPHA):.0f}% simultaneous CI | mark |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---|---|",
+    ]
+    for _, r in merged.iterrows():
+        is_ref = r["controller"] == reference
+        diff = "reference" if is_ref else f"{r['diff']:+.3g}"
+        ci = "" if is_ref else f"[{r['ci_low']:+.3g}, {r['ci_high']:+.3g}]"
+        lines.append(
+            f"| {_condition_name(r['disturbance'], r['level'])} | {r['controller']} | {r['n']} "
+            f"| {r['mean']:.3g} | {r['iqm']:.3g} | {r['cvar10']:.3g} | {r['failures']} | {diff} "
+            f"| {ci} | {'' if is_ref else r['mark']} |"
+        )
+    k = int(comparisons["comparisons"].iloc[0]) if len(comparisons) else 0
+    confidence = float(comparisons["confidence"].iloc[0]) if len(comparisons) else 1.0
+    lines += [
+        "",
+        f"Multiple comparisons: {k} comparisons, each interval at {100 * confidence:.3f}% "
+        f"(Bonferroni, family-wise {100 * ALPHA:.0f}%), percentile bootstrap of the mean paired "
+        f"difference ({resamples} resamples); CVaR₁₀ = mean of the worst ⌈10%·n⌉ episodes.",
+        "",
+        "## Aggregate over conditions",
+        "",
+        aggregate(df, metric, out),
+        "",
+        "## Worst case (adversarial search)",
+        "",
+        worst_case_section(worst_case),
+        "",
+    ]
+    path = out / "report.md"
+    path.write_text("\n".join(lines))
+    return path
