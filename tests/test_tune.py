@@ -128,3 +128,25 @@ def test_cli_refuses_unknown_keys(capsys):
     assert "unknown config key" in capsys.readouterr().err
     with pytest.raises(InvalidConfigError, match="key=value"):
         load_config(None, ["trials"])
+
+
+def test_episode_workers_reuse_envs_across_gains_and_keep_few(monkeypatch):
+    # a tuning worker runs a new gain set every trial: the env it steps must not be built
+    # (and kept) per gain set — that grew a worker by ~37 MB per episode until it was killed
+    from train import episode
+    from train.episode import EpisodeSettings, Task, run_episode
+
+    monkeypatch.setattr(episode, "CACHE_SIZE", 2)
+    monkeypatch.setattr(episode, "_ENV_CACHE", type(episode._ENV_CACHE)())
+    for omega in (10.0, 20.0, 30.0):
+        settings = EpisodeSettings(ENV, 0.1, 250.0, "on_path", 0.5, 0.01, (("omega", omega),))
+        run_episode(Task("computed_torque", "none", 0.0, 1000, 0), settings)
+    assert len(episode._ENV_CACHE) == 1
+    (first,) = episode._ENV_CACHE.values()
+    for dist in ("impulse", "periodic"):
+        run_episode(Task("computed_torque", dist, 1.0, 1000, 0), settings)
+    assert len(episode._ENV_CACHE) == 2
+    assert first not in episode._ENV_CACHE.values()
+    assert not first.unwrapped.sim.connected  # the evicted env was closed
+    for env in episode._ENV_CACHE.values():
+        env.close()

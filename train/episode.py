@@ -22,7 +22,9 @@ Imports are kept to what an episode needs: torch and SB3 only when a model is ev
 
 from __future__ import annotations
 
+import dataclasses
 import time
+from collections import OrderedDict
 from dataclasses import asdict, dataclass
 from typing import Any, Protocol
 
@@ -113,29 +115,49 @@ def _disturbance_text(disturbance: str, level: float) -> str | None:
 
 
 #: Per-process caches: building an env (and a model's env) costs more than an episode's
-#: first steps; an episode resets its env, so reuse is safe.
-_ENV_CACHE: dict[tuple[Any, ...], gym.Env[Any, Any]] = {}
-_SB3_CACHE: dict[tuple[Any, ...], tuple[gym.Env[Any, Any], Predictor]] = {}
+#: first steps; an episode resets its env, so reuse is safe. Keyed on what the env depends
+#: on (never the controller's gains: a tuning study tries a new set every trial) and
+#: bounded, least recently used evicted and closed: a worker's memory stays flat however
+#: many conditions it runs.
+_ENV_CACHE: OrderedDict[tuple[Any, ...], gym.Env[Any, Any]] = OrderedDict()
+_SB3_CACHE: OrderedDict[tuple[Any, ...], tuple[gym.Env[Any, Any], Predictor]] = OrderedDict()
+#: Most envs a worker keeps (an iiwa env holds ~30 MB, mostly its PyBullet client).
+CACHE_SIZE = 16
+
+
+def _cached(cache: OrderedDict[tuple[Any, ...], Any], key: tuple[Any, ...], build: Any) -> Any:
+    if key in cache:
+        cache.move_to_end(key)
+        return cache[key]
+    value = cache[key] = build()
+    while len(cache) > CACHE_SIZE:
+        _, old = cache.popitem(last=False)
+        (old[0] if isinstance(old, tuple) else old).close()
+    return value
+
+
+def _env_key(settings: EpisodeSettings) -> EpisodeSettings:
+    return dataclasses.replace(settings, gains="default")
 
 
 def _env(settings: EpisodeSettings, disturbance: str, level: float) -> gym.Env[Any, Any]:
-    key = (settings, disturbance, level)
-    if key not in _ENV_CACHE:
-        steps = round(settings.episode_s * settings.control_hz)
-        _ENV_CACHE[key] = gym.make(
+    steps = round(settings.episode_s * settings.control_hz)
+    return _cached(
+        _ENV_CACHE,
+        (_env_key(settings), disturbance, level),
+        lambda: gym.make(
             settings.env_id,
             **env_kwargs(
                 settings.control_hz, steps, settings.start, _disturbance_text(disturbance, level)
             ),
-        )
-    return _ENV_CACHE[key]
+        ),
+    )
 
 
 def _sb3_env_and_policy(
     controller: str, settings: EpisodeSettings, disturbance: str, level: float
 ) -> tuple[gym.Env[Any, Any], Predictor]:
-    key = (controller, settings, disturbance, level)
-    if key not in _SB3_CACHE:
+    def build() -> tuple[gym.Env[Any, Any], Predictor]:
         from train.sb3_runs import load_sb3_policy  # torch and SB3 only for a model
 
         policy, cfg = load_sb3_policy(controller, settings.env_id)
@@ -149,8 +171,9 @@ def _sb3_env_and_policy(
             settings.start,
             _disturbance_text(disturbance, level),
         )
-        _SB3_CACHE[key] = (env, policy)
-    return _SB3_CACHE[key]
+        return env, policy
+
+    return _cached(_SB3_CACHE, (controller, _env_key(settings), disturbance, level), build)
 
 
 def _first_impulse_end(schedule: list[dict[str, Any]]) -> float | None:
