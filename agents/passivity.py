@@ -79,6 +79,9 @@ DEFAULT_RATES: dict[str, Any] = {
     "sync_ratio": 0.5,
     "saturation_aware": True,
 }
+#: The rates one gain scale multiplies (``python -m train.fronts``): the joint and the
+#: phase spring bandwidths (the damping rates ρ, λ stay).
+BANDWIDTHS = ("omega", "omega_s")
 #: What ``python -m train.tune`` searches: rate → (low, high, log scale); the rest (the
 #: inertia floor, the re-synchronisation, the remedy) stays the robot's.
 TUNABLE = {

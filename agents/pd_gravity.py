@@ -38,6 +38,8 @@ NAME = "pd_gravity"
 #: Generic default rates: ω (rad/s), ζ.
 DEFAULT_RATES = {"omega": 20.0, "zeta": 1.0}
 #: What ``python -m train.tune`` searches: rate → (low, high, log scale).
+#: The rates one gain scale multiplies (``python -m train.fronts``): the bandwidth.
+BANDWIDTHS = ("omega",)
 TUNABLE = {"omega": (3.0, 100.0, True), "zeta": (0.5, 2.0, False)}
 
 

@@ -10,8 +10,9 @@ training scripts and the benchmarks use. Every controller is built from the env'
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import yaml
@@ -19,6 +20,7 @@ import yaml
 from agents import computed_torque, passivity, pd_gravity, slotine_li
 from agents.base import ControlContext, Controller
 from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.robots.profile import RobotProfile
 
 #: name → builder(ctx, gains=None) of every controller.
 CONTROLLERS: dict[str, Callable[..., Controller]] = {
@@ -32,13 +34,19 @@ CONTROLLERS: dict[str, Callable[..., Controller]] = {
 #: The controller names :func:`make_controller` accepts.
 CONTROLLER_NAMES: tuple[str, ...] = tuple(CONTROLLERS)
 
+#: name → the module that states the controller's rates (``NAME``, the profile key of its
+#: rates; ``DEFAULT_RATES``; ``TUNABLE``; ``BANDWIDTHS``).
+RATE_MODULES: dict[str, ModuleType] = {
+    "passivity": passivity,
+    "passivity_paper": passivity,
+    "computed_torque": computed_torque,
+    "pd_gravity": pd_gravity,
+    "slotine_li": slotine_li,
+}
+
 #: name → the rates ``python -m train.tune`` searches, rate → (low, high, log scale).
 TUNABLE: dict[str, dict[str, tuple[float, float, bool]]] = {
-    "passivity": passivity.TUNABLE,
-    "passivity_paper": passivity.TUNABLE,
-    "computed_torque": computed_torque.TUNABLE,
-    "pd_gravity": pd_gravity.TUNABLE,
-    "slotine_li": slotine_li.TUNABLE,
+    name: module.TUNABLE for name, module in RATE_MODULES.items()
 }
 
 
@@ -60,6 +68,31 @@ def tuned_rates(robot: str, controller: str) -> dict[str, Any]:
         have = sorted(p.stem for p in TUNED_DIR.glob("*.yml"))
         raise InvalidConfigError(f"no tuned gains for {controller} on {robot}; tuned: {have}")
     return dict(yaml.safe_load(path.read_text())["rates"])
+
+
+def effective_rates(profile: RobotProfile, name: str, gains: Any = "default") -> dict[str, Any]:
+    """Every rate ``name`` uses on the robot of ``profile`` with ``gains`` ("default",
+    "tuned" or a mapping of rates): its generic defaults, updated by the profile's, updated
+    by the tuned or given ones — what :func:`make_controller` makes absolute."""
+    module = RATE_MODULES[name]
+    rates = {**module.DEFAULT_RATES, **profile.controller_gains.get(module.NAME, {})}
+    if isinstance(gains, str):
+        if gains not in GAIN_CHOICES:
+            raise InvalidConfigError(f"gains must be one of {GAIN_CHOICES}, got {gains!r}")
+        if gains == "tuned":
+            rates.update(tuned_rates(profile.name, name))
+    elif isinstance(gains, Mapping):
+        rates.update(gains)
+    return rates
+
+
+def scaled_rates(profile: RobotProfile, name: str, gains: Any, scale: float) -> dict[str, Any]:
+    """:func:`effective_rates` with the controller's bandwidths (``BANDWIDTHS``) × ``scale``:
+    one knob from soft to stiff, the other rates (damping ratios, …) kept."""
+    if not (isinstance(scale, (int, float)) and scale > 0 and scale < float("inf")):
+        raise InvalidConfigError(f"a gain scale must be a positive number, got {scale!r}")
+    rates = effective_rates(profile, name, gains)
+    return {**rates, **{k: rates[k] * scale for k in RATE_MODULES[name].BANDWIDTHS}}
 
 
 def make_controller(name: str, env: Any, gains: Any = None) -> Controller:

@@ -61,6 +61,8 @@ NAME = "slotine_li"
 #: Generic default rates: ω (rad/s).
 DEFAULT_RATES = {"omega": 20.0, "kd_ratio": 1.0}
 #: What ``python -m train.tune`` searches: rate → (low, high, log scale).
+#: The rates one gain scale multiplies (``python -m train.fronts``): the bandwidth.
+BANDWIDTHS = ("omega",)
 TUNABLE = {"omega": (3.0, 100.0, True), "kd_ratio": (0.25, 4.0, True)}
 
 
