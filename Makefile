@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench clean check-python
+.PHONY: setup run test lint bench tune adversary fronts clean check-python
 
 setup: $(STAMP)
 
@@ -35,6 +35,20 @@ $(STAMP): pyproject.toml constraints.txt | check-python
 run: setup
 	$(PY) -m train.evaluate --config train/configs/main.yml --out results/main --no-progress
 	$(PY) -m train.evaluate --config train/configs/main_rl.yml --out results/main_rl --no-progress
+
+# The studies behind the main job's report (each minutes to tens of minutes on 2 cores;
+# their results are committed: agents/tuned, docs/results). Each refuses to overwrite its
+# output: pass --resume by hand to continue an interrupted one.
+tune: setup
+	$(PY) -m train.tune --config train/configs/tune_iiwa.yml --save
+	$(PY) -m train.tune --config train/configs/tune_two_link.yml --save
+
+adversary: setup
+	$(PY) -m train.adversary --config train/configs/adversary_iiwa.yml --no-progress
+	$(PY) -m train.adversary --config train/configs/adversary_two_link.yml --no-progress
+
+fronts: setup
+	$(PY) -m train.fronts --out docs/results/fronts_iiwa --no-progress
 
 lint: setup
 	$(PY) -m ruff check .

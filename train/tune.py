@@ -34,7 +34,6 @@ import datetime
 import math
 import os
 import sys
-import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -143,7 +142,7 @@ def test_reset_seeds(config: Path) -> set[int]:
 
     if not config.exists():
         raise InvalidConfigError(f"test_config {config} does not exist")
-    cfg = load_config(config, [])
+    cfg = load_config(config, [], validate=False)  # its seeds, whatever else it needs
     return {t.reset_seed for t in cfg.tasks()}
 
 
@@ -207,14 +206,13 @@ def tune(
                 print(f"effort budget {budget:.4f} ({cfg.effort_factor} x "
                       f"{cfg.effort_reference}'s default effort)", flush=True)  # fmt: skip
         for controller in cfg.controllers:
-            t0 = time.perf_counter()
             best = _study(optuna, storage, pool, cfg, controller, budget, progress)
-            best["wall_s"] = round(time.perf_counter() - t0, 1)
             results[controller] = best
             (out / f"{controller}.yml").write_text(yaml.safe_dump(best, sort_keys=False))
             if save_dir is not None:
                 save_dir.mkdir(parents=True, exist_ok=True)
-                record = {"rates": best["rates"], "study": {**settings_dict, **best}}
+                study = {**settings_dict, **best, "rates": dict(best["rates"])}  # no YAML alias
+                record = {"rates": dict(best["rates"]), "study": study}
                 path = save_dir / f"{robot}-{controller}.yml"
                 path.write_text(
                     f"# Tuned by python -m train.tune ({datetime.date.today()}); see "
@@ -303,7 +301,38 @@ def _study(
         "trials": len(trials),
         "feasible_trials": len(feasible),
         "effort_budget": float(budget),
+        # the trials' own durations: right across interruptions and resumes
+        "wall_s": round(
+            sum((t.datetime_complete - t.datetime_start).total_seconds() for t in trials), 1
+        ),
     }
+
+
+def tuned_table(tuned_dir: Path = TUNED_DIR) -> str:
+    """Markdown: every tuned file's rates next to the robot's defaults, with the study's
+    validation error, effort (budget) and wall time (``python -m train.tune --table``)."""
+    from agents.registry import RATE_MODULES, effective_rates
+    from ptrack_gym.robots import robot_profile
+
+    lines = [
+        "| robot | controller | tuned rates | default rates | validation error (rad) "
+        "| effort (budget) | feasible trials | wall (s) |",
+        "|---|---|---|---|---:|---|---:|---:|",
+    ]
+    for path in sorted(tuned_dir.glob("*.yml")):
+        data = yaml.safe_load(path.read_text())
+        robot, controller = path.stem.split("-", 1)
+        study = data["study"]
+        space = RATE_MODULES[controller].TUNABLE
+        default = effective_rates(robot_profile(robot), controller)
+        tuned_text = ", ".join(f"{k} {data['rates'][k]:.3g}" for k in space)
+        default_text = ", ".join(f"{k} {default[k]:.3g}" for k in space)
+        lines.append(
+            f"| {robot} | {controller} | {tuned_text} | {default_text} "
+            f"| {study['error_rad']:.3g} | {study['effort']:.4f} ({study['effort_budget']:.4f}) "
+            f"| {study['feasible_trials']}/{study['trials']} | {study['wall_s']:.0f} |"
+        )
+    return "\n".join(lines)
 
 
 def load_config(path: Path | None, overrides: Sequence[str]) -> TuneConfig:
@@ -331,7 +360,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--resume", action="store_true", help="continue the study in --out")
     parser.add_argument("--save", action="store_true", help="write agents/tuned/<robot>-<c>.yml")
     parser.add_argument("--no-progress", action="store_true")
+    parser.add_argument("--table", action="store_true", help="print the tuned gains and exit")
     args = parser.parse_args(argv)
+    if args.table:
+        print(tuned_table())
+        return 0
     try:
         overrides = list(args.set) + ([f"out={args.out}"] if args.out else [])
         results = tune(
