@@ -519,6 +519,7 @@ class PassivityController:
                 dissipation=out.dissipation,
                 sync_power=out.sync_power,
                 path_error=out.path_error,
+                r0_scale=out.r0_scale,
             )
         return d
 

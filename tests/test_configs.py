@@ -1,0 +1,46 @@
+"""Every shipped config validates: the main job, the tuning studies, the adversarial
+searches and the RL configs name controllers, presets and tuned gains that exist."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = sorted((ROOT / "train" / "configs").glob("*.yml"))
+
+
+def _loader(name: str):
+    if name.startswith("tune_"):
+        pytest.importorskip("optuna", reason="the 'tune' extra")
+        from train.tune import load_config
+
+        return lambda p: load_config(p, []).validate()
+    if name.startswith("adversary_"):
+        pytest.importorskip("optuna", reason="the 'tune' extra")
+        from train.adversary import load_config
+
+        return lambda p: load_config(p, []).validate()
+    from train.evaluate import load_config
+
+    return lambda p: load_config(p, [])  # validates
+
+
+@pytest.mark.parametrize("path", CONFIGS, ids=[p.stem for p in CONFIGS])
+def test_shipped_config_validates(path: Path, monkeypatch) -> None:
+    monkeypatch.chdir(ROOT)  # configs name repository paths
+    _loader(path.stem)(path)
+
+
+def test_the_main_job_compares_tuned_gains_on_enough_seeds() -> None:
+    from train.evaluate import load_config
+
+    cfg = load_config(ROOT / "train/configs/main.yml", [])
+    assert cfg.gains == "tuned" and cfg.seeds >= 20
+    assert {"passivity", "passivity_paper"} <= set(cfg.controllers)
+    # an impulse ends by the top of its onset range + 50 ms: >= 3 s of recovery is measured
+    from ptrack_gym.disturbances.base import DISTURBANCES
+
+    onset = DISTURBANCES["impulse"].__dataclass_fields__["onset_s"].default
+    assert cfg.episode_s - (onset[1] + 0.05) >= 3.0
