@@ -30,10 +30,12 @@ Notation (SI units; s, σ in seconds of path time): with measured (q, q̇),
 
 Storage function E = H + W_r(σ) + H_r + φ + ψ, with Ė = −R s̃̇² (k = 0, no disturbance).
 
-Opt-in, not in the paper: ``PassivityGains.sync_rate`` > 0 adds a low-speed phase
+Opt-in, not in the paper: ``PassivityGains.sync_rate`` > 0 adds a phase
 re-synchronisation of σ (see :meth:`PassivityController.law`); it acts only while the
-speed ratio v/√M_r(s) is below ``sync_ratio`` and leaves the law above it unchanged.
-With ``sync_rate`` = 0 (the dataclass default) the law is exactly the paper's.
+speed ratio v/√M_r(s) is below ``sync_ratio`` (the iiwa: 0.5, at low speed; the Panda: 2,
+also at nominal speed) and leaves the law above it unchanged; on the reference its term is
+exactly 0 whatever ``sync_ratio``. With ``sync_rate`` = 0 (the dataclass default) the law
+is exactly the paper's.
 
 Default gains (:func:`default_gains`) are set by four rates and an inertia floor, the same
 on every robot, made absolute with the robot's home-pose joint inertias and the mean M_r of
@@ -111,7 +113,7 @@ class PassivityGains:
             f = −k(H + W_r(σ)) q̇ (the paper's written form).
         speed_eps: below this √(q̇ᵀMq̇) (√J) the direction τ_q̇/speed is taken as 0, as the
             paper prescribes for speed ≈ 0; keeps the law finite at rest.
-        sync_rate: γ ≥ 0 (1/s), low-speed phase re-synchronisation — NOT in the paper;
+        sync_rate: γ ≥ 0 (1/s), phase re-synchronisation of σ — NOT in the paper;
             0 (the default) is the paper's law exactly. With γ > 0, while the speed ratio
             v/√M_r(s) is below ``sync_ratio``, σ is also pulled toward the arm's own phase
             on the path (see :meth:`PassivityController.law`), which frees the stall trap
@@ -342,7 +344,7 @@ class PassivityController:
     def law(self, q: FloatArray, qd: FloatArray, s: float, sd: float, sigma: float) -> LawOutput:
         """Evaluate the control law at (q, q̇, s, ṡ, σ); changes no state.
 
-        Low-speed phase re-synchronisation (``gains.sync_rate`` γ > 0; not in the paper):
+        Phase re-synchronisation (``gains.sync_rate`` γ > 0; not in the paper):
         the paper's σ integrates the speed ratio v/√M_r(s), which counts *any* motion, so
         the initial snap onto the path from an off-path rest start can leave σ a few
         tenths of a second ahead of the arm's actual place on the path. At low speed that
@@ -356,8 +358,12 @@ class PassivityController:
         metric M(q), and w = 1 − 3x² + 2x³, x = min(v/(r̄ √M_r(s)), 1), r̄ =
         ``gains.sync_ratio``: w = 1 at rest, w = 0 at and above the speed ratio r̄. So σ
         relaxes toward the arm's phase at rate γ while the arm is slow, and the law is
-        the paper's exactly whenever v/√M_r(s) ≥ r̄ (in particular on the reference, so
-        Lemma 5.1 holds). With u = w γ Δ the storage function's balance becomes
+        the paper's exactly whenever v/√M_r(s) ≥ r̄. On the reference Δ = 0 (q = q_r(σ)),
+        so the term vanishes there for any r̄ and Lemma 5.1 holds. r̄ > 1 (the Panda's 2)
+        lets it act at nominal speed too: there the paper's σ can hold a steady phase
+        defect (s̃ ≈ −2 ms on the Panda) that the phase spring maps into a transverse
+        path error of several mrad decaying over ~60 s
+        (``docs/passivity_gain_study.md``). With u = w γ Δ the storage function's balance becomes
         Ė = −R s̃̇² + pump power + q̇ᵀτ_d + (W_r'(σ) − κ s̃ − R s̃̇) u, the last term
         ``sync_power`` (derivation: σ̇ = σ̇₀ + u enters Ẇ_r(σ) and ψ̇, while the μ channel
         delivers −μ√M_r σ̇₀; tested on the exact closed loop): Theorem 4.1's

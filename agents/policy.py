@@ -29,6 +29,19 @@ from typing import Any
 import numpy as np
 
 from agents.base import Controller, FloatArray
+from ptrack_gym.errors import ControllerDivergedError
+
+
+def require_finite_torque(tau_nm: FloatArray, controller: Controller, t_s: float) -> FloatArray:
+    """``tau_nm`` if every entry is finite, else :class:`ControllerDivergedError` naming the
+    controller, the time and the entries (a diverged controller, not a bad action)."""
+    if not np.all(np.isfinite(tau_nm)):
+        bad = np.flatnonzero(~np.isfinite(tau_nm)).tolist()
+        raise ControllerDivergedError(
+            f"{type(controller).__name__} returned a non-finite torque at t = {t_s:.4f} s "
+            f"(joints {bad}): the controller diverged"
+        )
+    return tau_nm
 
 
 def torque_to_action(tau_nm: FloatArray, torque_limits_nm: FloatArray) -> np.ndarray:
@@ -87,11 +100,17 @@ class ControllerPolicy:
 
     def torque(self, observation: np.ndarray) -> FloatArray:
         """One control step: τ (N·m) for the env's current state (the controller is reset
-        first if the env was reset since)."""
+        first if the env was reset since).
+
+        Raises:
+            ControllerDivergedError: the controller returned a non-finite torque.
+        """
         if self._episode != self.env.episode:
             self.reset_controller(observation)
         q, qd = self._state(observation)
-        tau = self.controller.step(q, qd, self.env.dt)
+        tau = require_finite_torque(
+            self.controller.step(q, qd, self.env.dt), self.controller, self.env.t
+        )
         self.last_tau_nm = tau
         if self.record:
             self.records.append({"t_s": self.env.t, "tau_nm": tau, **self.last_diagnostics})

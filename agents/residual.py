@@ -220,7 +220,8 @@ class ResidualWrapper(
         self.controller.reset(q, qd, u.s0 + u.t)
         self._base_ratio = np.zeros(self.n)
         info["controller"] = self.controller.diagnostics()
-        return self._augment(obs), info
+        self._last_obs = self._augment(obs)
+        return self._last_obs, info
 
     def step(
         self, action: np.ndarray
@@ -239,6 +240,10 @@ class ResidualWrapper(
         u = self.tracking_env
         q, qd = u.measured_joint_state()
         tau_base = self.controller.step(q, qd, u.dt)  # (n,) N·m
+        if not np.all(np.isfinite(tau_base)):  # the base diverged: the episode ends as unstable
+            info = {"unstable": True, "controller_diverged": True, "t_s": u.t}
+            penalty = -float(u.config.unstable_penalty)
+            return self._last_obs, penalty, True, False, info
         tau_res = self.scale_nm * np.minimum(np.maximum(a, -1.0), 1.0)  # (n,) N·m
         inner_action = torque_to_action(tau_base + tau_res, self.torque_limits_nm)
         obs, reward, terminated, truncated, info = self.env.step(inner_action)
@@ -246,7 +251,8 @@ class ResidualWrapper(
         info["tau_base_nm"] = tau_base
         info["tau_residual_nm"] = tau_res
         info["controller"] = self.controller.diagnostics()
-        return self._augment(obs), reward, terminated, truncated, info
+        self._last_obs = self._augment(obs)
+        return self._last_obs, reward, terminated, truncated, info
 
 
 def make_residual_env(

@@ -92,6 +92,7 @@ class GainPoint:
     m_floor: float = 0.0  # kg·m²: K_j = ω² max(M_jj(q_home), m_floor)
     sync_rate: float = 0.0  # γ (1/s): low-speed phase re-synchronisation (0 = paper law)
     sync_ratio: float = 0.5  # r̄ (1): speed ratio below which sync_rate acts
+    saturation_aware: bool = True  # τ_r⁰ scaled into the actuator box (the default law)
 
     @property
     def label(self) -> str:
@@ -100,11 +101,25 @@ class GainPoint:
             f"lam={self.lam:g} {self.pump}"
             + (f" mfloor={self.m_floor:g}" if self.m_floor else "")
             + (f" sync={self.sync_rate:g}/{self.sync_ratio:g}" if self.sync_rate else "")
+            + ("" if self.saturation_aware else " unaware")
         )
 
-    def gains(self, inertia: np.ndarray, mean_m_r: float, dt_s: float) -> PassivityGains:
+    def gains(
+        self,
+        inertia: np.ndarray,
+        mean_m_r: float,
+        dt_s: float,
+        torque_limits_nm: np.ndarray | None = None,
+    ) -> PassivityGains:
         """The absolute gains (``PassivityGains.from_rates``, rate-aware at ``dt_s``)."""
-        return PassivityGains.from_rates(inertia, mean_m_r, dt_s=dt_s, **asdict(self))
+        r = asdict(self)
+        aware = r.pop("saturation_aware")
+        lim = (
+            tuple(float(x) for x in torque_limits_nm)
+            if aware and torque_limits_nm is not None
+            else None
+        )
+        return PassivityGains.from_rates(inertia, mean_m_r, dt_s=dt_s, torque_limits_nm=lim, **r)
 
 
 def parse_set(text: str) -> GainPoint:
@@ -112,7 +127,8 @@ def parse_set(text: str) -> GainPoint:
     [,sync_ratio=..]`` → GainPoint."""
     fields: dict[str, str] = dict(kv.split("=", 1) for kv in text.split(","))
     pump = fields.pop("pump", "metric")
-    return GainPoint(**{k: float(v) for k, v in fields.items()}, pump=pump)  # type: ignore[arg-type]
+    aware = fields.pop("saturation_aware", "1") not in ("0", "false", "False")
+    return GainPoint(**{k: float(v) for k, v in fields.items()}, pump=pump, saturation_aware=aware)  # type: ignore[arg-type]
 
 
 #: Centre of the quick grid, found by hand (on-path and three-seed screens, see the doc).
@@ -384,7 +400,7 @@ def main(argv: list[str] | None = None) -> int:
     with args.out.open("w", newline="") as fh:
         writer = None
         for pt in points:
-            gains = pt.gains(inertia, mean_m_r, env.unwrapped.dt)
+            gains = pt.gains(inertia, mean_m_r, env.unwrapped.dt, env.unwrapped.torque_limits_nm)
             if args.grid == "defaults" and not args.set:
                 stored = passivity.default_gains(ControlContext.from_env(env))
                 if stored != gains:

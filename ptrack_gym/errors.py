@@ -27,3 +27,8 @@ class InvalidConfigError(PtrackError, ValueError):
 
 class SimulationClosedError(PtrackError, RuntimeError):
     """A closed simulation was used."""
+
+
+class ControllerDivergedError(PtrackError, FloatingPointError):
+    """A controller returned a non-finite torque: it has diverged (the evaluation ends the
+    episode as unstable; the residual env terminates it with the unstable penalty)."""

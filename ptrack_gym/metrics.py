@@ -135,6 +135,15 @@ def episode_metrics(
             },
         )
     q, qd = record.q, record.qd
+    if len(q) == 0:  # nothing was stepped (a controller diverged at once): failed throughout
+        out = dict.fromkeys(METRIC_NAMES, float("nan"))
+        out.update(
+            path_dist_rms=failure_distance_rad, path_dist_max=failure_distance_rad,
+            path_dist_final=failure_distance_rad, time_err_rms=failure_distance_rad,
+            controller_work_j=0.0, disturbance_work_j=float(record.disturbance_work_j),
+            failed=1.0,
+        )  # fmt: skip
+        return out
     if record.path_distance is not None and record.path_s is not None:
         dist, s_star = np.asarray(record.path_distance), np.asarray(record.path_s)
     else:

@@ -69,6 +69,15 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
     run_search(load_config(None, [*TINY, "budget=20", f"out={out}"]), resume=True, progress=False)
     df = pd.read_csv(out / "trials.csv", float_precision="round_trip")
     assert len(df) == 40
+    # the random draws of the resumed search are those of an uninterrupted one
+    fresh = tmp_path / "fresh"
+    run_search(load_config(None, [*TINY, "budget=20", f"out={fresh}"]), progress=False)
+    whole = pd.read_csv(fresh / "trials.csv", float_precision="round_trip")
+    rand = ["trial", "cost_rad", "spec"]
+    pd.testing.assert_frame_equal(
+        df[df["kind"] == "random"][rand].sort_values("trial").reset_index(drop=True),
+        whole[whole["kind"] == "random"][rand].sort_values("trial").reset_index(drop=True),
+    )
     first = pd.read_csv(search / "trials.csv", float_precision="round_trip")
     kept = df[df["trial"] < 16].sort_values(["kind", "trial"]).reset_index(drop=True)
     pd.testing.assert_series_equal(

@@ -66,6 +66,11 @@ def test_tiny_study_runs_resumes_and_its_saved_gains_load(tmp_path, monkeypatch)
     assert [t.params for t in trials[:2]] == before
     assert all(t.constraints for t in trials)  # the effort constraint reaches the sampler
 
+    # the resumed study asked what an uninterrupted one asks
+    whole = tmp_path / "whole"
+    tune(tiny(whole, trials=3), progress=False)
+    assert [t.params for t in _trials(whole)] == [t.params for t in trials]
+
     rates = best["computed_torque"]["rates"]
     monkeypatch.setattr(registry, "TUNED_DIR", saved)
     assert registry.tuned_rates("two_link", "computed_torque") == rates

@@ -381,7 +381,7 @@ def _run_study(
                 warn_independent_sampling=False,
             )
     else:
-        sampler = optuna.samplers.RandomSampler(seed=cfg.seed + 1)
+        sampler = optuna.samplers.RandomSampler(seed=_draw_seed(cfg.seed, 0))  # reseeded per draw
     study = optuna.create_study(
         study_name=name, storage=storage, sampler=sampler, direction="maximize",
         load_if_exists=True,
@@ -391,7 +391,11 @@ def _run_study(
         study.tell(stale.number, state=optuna.trial.TrialState.FAIL)
     done = len(study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)))
     while done < cfg.budget:
-        batch = [study.ask() for _ in range(min(cfg.popsize, cfg.budget - done))]
+        batch = []
+        for i in range(min(cfg.popsize, cfg.budget - done)):
+            if kind == "random":  # the k-th draw is a function of (seed, k): resume-safe
+                study.sampler = optuna.samplers.RandomSampler(seed=_draw_seed(cfg.seed, done + i))
+            batch.append(study.ask())
         specs = [target.spec(target.space(trial)) for trial in batch]
         tasks = [
             (cfg.env_id, controller, spec, cfg.reset_seed, target.episode_s(), target.window(spec),
@@ -406,6 +410,12 @@ def _run_study(
         done += len(batch)
         if progress:
             print(f"{name}: {done}/{cfg.budget}, worst {study.best_value:.3g} rad", flush=True)
+
+
+def _draw_seed(seed: int, k: int) -> int:
+    """The seed of the k-th random draw: an interrupted and resumed search draws exactly
+    what an uninterrupted one does (a sampler seeded once would repeat its first draws)."""
+    return int(np.random.SeedSequence([seed, 1, k]).generate_state(1)[0])
 
 
 def _config_dict(cfg: AdversaryConfig) -> dict[str, Any]:

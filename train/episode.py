@@ -34,6 +34,7 @@ import numpy as np
 import ptrack_gym  # noqa: F401  (registers the envs)
 from agents.policy import ControllerPolicy
 from agents.registry import make_controller
+from ptrack_gym.errors import ControllerDivergedError
 from ptrack_gym.metrics import EpisodeRecord, episode_metrics
 from train.envs import build_env, env_kwargs
 
@@ -187,7 +188,9 @@ def rollout(
     """One episode of ``policy`` on ``env`` from ``env.reset(seed=reset_seed)`` until it
     terminates or is truncated: the :class:`EpisodeRecord` and, with ``keep_trace``, the
     policy's storage terms per step (the passivity controller's H + W_r(σ), H_r, φ, ψ, E;
-    NaN for other policies). The one episode loop of the package, for anything with SB3's
+    NaN for other policies). A controller that diverges (a non-finite torque,
+    :class:`~ptrack_gym.errors.ControllerDivergedError`) ends the episode as unstable at
+    the step it would have taken. The one episode loop of the package, for anything with SB3's
     ``predict``."""
     u = env.unwrapped
     rows: dict[str, list[Any]] = {
@@ -197,7 +200,11 @@ def rollout(
     obs, _ = env.reset(seed=reset_seed)
     episode_start = np.ones(1, dtype=bool)
     while True:
-        action, _ = policy.predict(obs, episode_start=episode_start, deterministic=True)
+        try:
+            action, _ = policy.predict(obs, episode_start=episode_start, deterministic=True)
+        except ControllerDivergedError:  # a non-finite torque: the closed loop is unstable
+            unstable = True
+            break
         episode_start = np.zeros(1, dtype=bool)
         obs, _, terminated, truncated, info = env.step(action)
         q, qd = u.joint_state()
@@ -216,14 +223,15 @@ def rollout(
         if terminated or truncated:
             unstable = bool(info["unstable"])
             break
+    n = u.n  # (steps, n) arrays even when no step was taken
     record = EpisodeRecord(
         t_s=np.array(rows["t"]),
-        q=np.array(rows["q"]),
-        qd=np.array(rows["qd"]),
+        q=np.array(rows["q"]).reshape(-1, n),
+        qd=np.array(rows["qd"]).reshape(-1, n),
         s_ref=np.array(rows["s_ref"]),
-        tau_nm=np.array(rows["tau"]),
+        tau_nm=np.array(rows["tau"]).reshape(-1, n),
         torque_limits_nm=u.torque_limits_nm,
-        disturbance_work_j=float(info["disturbance_work_j"]),
+        disturbance_work_j=float(info.get("disturbance_work_j", 0.0)),  # {} if none stepped
         unstable=unstable,
         impulse_end_s=_first_impulse_end(u.disturbance_schedule()),
         intended_steps=env.spec.max_episode_steps if env.spec is not None else None,

@@ -260,6 +260,13 @@ def _study(
     done = len(study.get_trials(deepcopy=False, states=(complete,)))
     tasks = cfg.tasks(controller)
     while done < cfg.trials:
+        # TPE rebuilds its model from the history at every ask: a sampler seeded by
+        # (seed, trial index) makes a resumed study ask exactly what an uninterrupted one
+        # does (one seeded once would repeat its first random startup draws)
+        study.sampler = optuna.samplers.TPESampler(
+            seed=int(np.random.SeedSequence([cfg.seed, done]).generate_state(1)[0]),
+            n_startup_trials=cfg.startup_trials,
+        )
         trial = study.ask()
         rates = {
             name: trial.suggest_float(name, low, high, log=log)
