@@ -6,10 +6,12 @@ One Optuna study per robot × controller, the same settings for every controller
   damping or phase rate each, four rates for the passivity law), made absolute by the
   controller's own ``gains_from_rates`` exactly as its defaults are;
 * sampler — TPE, seeded, ``startup_trials`` random trials first; ``trials`` per study;
-* objective — the mean path-distance RMS (rad) over ``validation_seeds`` × ``disturbances``
-  (each preset at level 1, started on the path); a failed episode (unstable, or the path
-  distance past ``failure_distance_rad``) counts with its padded RMS, so failures are
-  penalised;
+* objective — the geometric mean of the path-distance RMS (rad) over
+  ``validation_seeds`` × ``disturbances`` (each preset at level 1, started on the path):
+  scale-free, so the undisturbed case (~1e-4 rad) counts as much as a payload (~1e-1 rad)
+  in relative terms, where an arithmetic mean would tune for the payload alone; a failed
+  episode (unstable, or the path distance past ``failure_distance_rad``) counts with its
+  padded RMS, so failures are penalised;
 * constraint — the mean dynamic effort (``tau_dyn_rms_frac``: the RMS of (τ − g(q))/τ_max,
   the effort beyond holding the arm up, which is the same for every controller) must stay
   ≤ the budget: ``effort_budget`` if given, else ``effort_factor`` × what
@@ -277,7 +279,7 @@ def _study(
             0.01, gains=tuple(sorted(rates.items())),
         )  # fmt: skip
         rows = list(pool.map(_run, [(t, settings) for t in tasks]))
-        error = float(np.mean([r["path_dist_rms"] for r in rows]))
+        error = float(np.exp(np.mean(np.log([max(r["path_dist_rms"], 1e-12) for r in rows]))))
         effort = float(np.mean([r["tau_dyn_rms_frac"] for r in rows]))
         failures = int(sum(r["failed"] for r in rows))
         trial.set_user_attr("effort", effort)
