@@ -273,6 +273,48 @@ def test_energy_budget_sets_the_impulse_size() -> None:
     env.close()
 
 
+def _kinetic_energy_jump(mode: str, onset_s: float, direction: list[float]) -> tuple[float, float]:
+    """What an impulse of 0.3 J does in its one physics step to the falling two-link arm
+    (zero action from the path): the kinetic energy it adds, T(q̇⁺) with it − T(q̇⁺) without
+    (both in the M(q) of the step: PyBullet's step is semi-implicit Euler with that M), and
+    the part of it that gravity's pull during the step adds, pᵀ(q̇₀⁺ − q̇), p the impulse's
+    momentum and q̇₀⁺ the velocity after the step without it."""
+    spec = {"type": "impulse", "energy_j": 0.3, "duration_s": 0.001, "onset_s": onset_s,
+            "direction": direction, "energy_mode": mode}  # fmt: skip
+    envs = [gym.make(TWO_LINK, disturbance=d, control_hz=1000.0) for d in (spec, None)]
+    try:
+        for e in envs:
+            e.reset(seed=3)
+        zero = np.zeros(2, dtype=np.float32)
+        while True:
+            q_pre, qd_pre = envs[0].unwrapped.joint_state()
+            infos = [e.step(zero)[-1] for e in envs]
+            if np.any(infos[0]["disturbance_torque_nm"]):
+                break
+        m = envs[0].unwrapped.model.mass_matrix(q_pre)
+        qd_with, qd_without = (e.unwrapped.joint_state()[1] for e in envs)
+        p = infos[0]["disturbance_torque_nm"] * 0.001
+        jump = 0.5 * qd_with @ m @ qd_with - 0.5 * qd_without @ m @ qd_without
+        return jump, float(p @ (qd_without - qd_pre))
+    finally:
+        for e in envs:
+            e.close()
+
+
+def test_delivered_mode_gives_the_moving_arm_its_energy_budget() -> None:
+    rng = np.random.default_rng(0)
+    home = []
+    for _ in range(6):
+        onset, direction = float(rng.uniform(0.2, 0.8)), rng.normal(size=2).tolist()
+        jump, gravity_part = _kinetic_energy_jump("delivered", onset, direction)
+        # the sizing solves pᵀq̇ + ½pᵀM⁻¹p = E at the onset state: exact, but for what
+        # gravity adds while the impulse acts
+        assert jump - gravity_part == pytest.approx(0.3, rel=1e-9)
+        assert abs(gravity_part) < 0.15 * 0.3
+        home.append(_kinetic_energy_jump("home", onset, direction)[0])
+    assert np.ptp(home) > 0.1  # sized at rest at home, it gives the moving arm other energies
+
+
 @pytest.mark.parametrize(
     ("spec", "match"),
     [
