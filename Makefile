@@ -46,6 +46,7 @@ tune: setup
 adversary: setup
 	$(PY) -m train.adversary --config train/configs/adversary_iiwa.yml --no-progress
 	$(PY) -m train.adversary --config train/configs/adversary_two_link.yml --no-progress
+	$(PY) -m train.adversary --config train/configs/adversary_iiwa_default_gains.yml --no-progress
 
 fronts: setup
 	$(PY) -m train.fronts --out docs/results/fronts_iiwa --no-progress

@@ -45,6 +45,12 @@ def test_search_finds_a_worse_push_than_the_median_random_one(search) -> None:
     summary = pd.read_csv(search / "summary.csv", float_precision="round_trip")
     assert summary.loc[0, "worst_search_rad"] == searched.max()
     assert summary.loc[0, "median_random_rad"] == random.median()
+    assert summary.loc[0, "worst_rad"] == df["cost_rad"].max()  # searched or random
+    worst = yaml.safe_load((search / "worst.yml").read_text())["worst"]
+    for (controller, energy), g in df.groupby(["controller", "energy_j"]):
+        entry = worst[controller]["impulse"][f"{energy:g}"]
+        assert entry["cost_rad"] == g["cost_rad"].max()  # the worst episode run, either kind
+        assert entry["found_by"] == g.loc[g["cost_rad"].idxmax(), "kind"]
     for name in ("summary.md", "adversary.png", "worst.yml", "config.yml", "optuna.journal"):
         assert (search / name).stat().st_size > 0, name
 

@@ -19,6 +19,7 @@ from train.report import (
     paired_comparisons,
     verdict_paragraph,
     worst_case_section,
+    worst_case_sentence,
     write_report,
 )
 
@@ -151,11 +152,19 @@ def test_worst_case_section_reads_a_search_summary(tmp_path):
     (folder / "config.yml").write_text(yaml.safe_dump({
         "env_id": "ptrack_gym/IiwaTrack-v0", "families": ["impulse"], "gains": "tuned",
         "budget": 200, "post_s": 1.5, "failure_distance_rad": 0.5}))  # fmt: skip
-    pd.DataFrame([{
-        "controller": "passivity", "family": "impulse", "energy_j": 2.0,
+    row = {
+        "controller": "passivity", "family": "impulse", "energy_j": 2.0, "worst_rad": 0.06,
         "worst_search_rad": 0.06, "median_random_rad": 0.01, "worst_random_rad": 0.03,
         "worst_over_median": 6.0, "unstable_search": 0, "n_search": 200,
         "unstable_random": 0, "n_random": 200, "work_min_j": 0.5, "work_max_j": 3.5,
-    }]).to_csv(folder / "summary.csv", index=False)  # fmt: skip
+    }  # fmt: skip
+    # a random draw found what the search missed: it is the worst case, and it is counted
+    paper = {**row, "controller": "passivity_paper", "worst_rad": 0.5, "worst_search_rad": 0.04,
+             "worst_random_rad": 0.5, "worst_over_median": 4.0, "unstable_random": 1}  # fmt: skip
+    pd.DataFrame([row, paper]).to_csv(folder / "summary.csv", index=False)
     text = worst_case_section([folder])
-    assert "| Iiwa | passivity | 2 | 0.06 | 0.01 | 6.0 | 0/200 | 0/200 | 0.50–3.50 |" in text
+    assert "| Iiwa | passivity | 2 | 0.06 | 0.06 | 0.01 | 6.0 | 0/200 | 0/200 | 0.50–3.50 |" in text
+    assert "| Iiwa | passivity_paper | 2 | 0.5 | 0.04 | 0.01 | 4.0 | 0/200 | 1/200 |" in text
+    sentence = worst_case_sentence([folder])
+    assert "lowest worst case passivity (0.06 rad)" in sentence
+    assert "unstable: passivity_paper 0/200 searched, 1/200 random" in sentence

@@ -356,9 +356,10 @@ def worst_case_section(folders: Sequence[str | Path]) -> str:
 
     blocks = []
     lines = [
-        "| robot | controller | energy (J) | worst searched (rad) | median random (rad) "
-        "| worst / median | unstable, searched | unstable, random | delivered work (J) |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+        "| robot | controller | energy (J) | worst found (rad) | worst searched (rad) "
+        "| median random (rad) | searched / median | unstable, searched | unstable, random "
+        "| delivered work (J) |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for folder in map(Path, folders):
         summary, config = folder / "summary.csv", folder / "config.yml"
@@ -373,7 +374,8 @@ def worst_case_section(folders: Sequence[str | Path]) -> str:
         s = pd.read_csv(summary)
         for _, r in s.iterrows():
             lines.append(
-                f"| {robot} | {r['controller']} | {r['energy_j']:g} | {r['worst_search_rad']:.3g} "
+                f"| {robot} | {r['controller']} | {r['energy_j']:g} | {r['worst_rad']:.3g} "
+                f"| {r['worst_search_rad']:.3g} "
                 f"| {r['median_random_rad']:.3g} | {r['worst_over_median']:.1f} "
                 f"| {r['unstable_search']}/{r['n_search']} "
                 f"| {r['unstable_random']}/{r['n_random']} "
@@ -390,8 +392,8 @@ def worst_case_section(folders: Sequence[str | Path]) -> str:
 
 def worst_case_sentence(folders: Sequence[str | Path]) -> str:
     """The worst-case verdict, from the searches' ``summary.csv``: per robot and energy, the
-    controller with the lowest worst searched cost, and every controller the search made
-    unstable (with how often)."""
+    controller with the lowest worst case (searched or random), and every controller that
+    an episode made unstable (how often, searched and random)."""
     parts = []
     for folder in map(Path, folders):
         summary = folder / "summary.csv"
@@ -403,16 +405,17 @@ def worst_case_sentence(folders: Sequence[str | Path]) -> str:
         robot = env_id.split("/")[-1].replace("Track-v0", "")
         s = pd.read_csv(summary)
         for (family, energy), g in s.groupby(["family", "energy_j"]):
-            best = g.loc[g["worst_search_rad"].idxmin()]
+            best = g.loc[g["worst_rad"].idxmin()]
             unstable = [
-                f"{r['controller']} {r['unstable_search']}/{r['n_search']}"
+                f"{r['controller']} {r['unstable_search']}/{r['n_search']} searched, "
+                f"{r['unstable_random']}/{r['n_random']} random"
                 for _, r in g.iterrows()
                 if r["unstable_search"] or r["unstable_random"]
             ]
             parts.append(
                 f"{robot}, {family} {energy:g} J: lowest worst case {best['controller']} "
-                f"({best['worst_search_rad']:.3g} rad); "
-                + ("unstable under search: " + ", ".join(unstable) if unstable else "none unstable")
+                f"({best['worst_rad']:.3g} rad); "
+                + ("unstable: " + ", ".join(unstable) if unstable else "none unstable")
             )
     return ("Worst case — " + "; ".join(parts) + ".") if parts else ""
 
