@@ -2,7 +2,8 @@
 
 Adding a controller is one file (a class with the :class:`~agents.base.Controller`
 interface and a ``build(ctx, gains=None)`` function that fills in default gains) and one
-entry in :data:`CONTROLLERS` (and in :data:`TUNABLE` if its rates are to be tuned).
+entry in :data:`CONTROLLERS` and one in :data:`RATE_MODULES` (the module stating its
+default, tunable and bandwidth rates).
 :func:`make_controller` is the one constructor the residual wrapper, the evaluation and
 training scripts and the benchmarks use. Every controller is built from the env's
 *nominal* model (``env.unwrapped.model``), never from the simulated body.

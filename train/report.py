@@ -347,6 +347,14 @@ def _aggregate_plot(
     plt.close(fig)
 
 
+def _search_label(cfg: dict[str, Any]) -> str:
+    """A search's robot and gains, e.g. ``Iiwa (tuned)``: one robot may be searched at
+    several gain choices."""
+    robot = cfg["env_id"].split("/")[-1].replace("Track-v0", "")
+    gains = cfg.get("gains", "default")
+    return f"{robot} ({gains if isinstance(gains, str) else 'given'})"
+
+
 def worst_case_section(folders: Sequence[str | Path]) -> str:
     """The worst-case table of the adversarial searches in ``folders`` (their
     ``summary.csv`` and ``config.yml``), or what is missing and how to make it."""
@@ -356,7 +364,7 @@ def worst_case_section(folders: Sequence[str | Path]) -> str:
 
     blocks = []
     lines = [
-        "| robot | controller | energy (J) | worst found (rad) | worst searched (rad) "
+        "| robot (gains) | controller | energy (J) | worst found (rad) | worst searched (rad) "
         "| median random (rad) | searched / median | unstable, searched | unstable, random "
         "| delivered work (J) |",
         "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
@@ -370,7 +378,7 @@ def worst_case_section(folders: Sequence[str | Path]) -> str:
             )
             continue
         cfg = yaml.safe_load(config.read_text())
-        robot = cfg["env_id"].split("/")[-1].replace("Track-v0", "")
+        robot = _search_label(cfg)
         s = pd.read_csv(summary)
         for _, r in s.iterrows():
             lines.append(
@@ -401,8 +409,7 @@ def worst_case_sentence(folders: Sequence[str | Path]) -> str:
             continue
         import yaml
 
-        env_id = yaml.safe_load((folder / "config.yml").read_text())["env_id"]
-        robot = env_id.split("/")[-1].replace("Track-v0", "")
+        robot = _search_label(yaml.safe_load((folder / "config.yml").read_text()))
         s = pd.read_csv(summary)
         for (family, energy), g in s.groupby(["family", "energy_j"]):
             best = g.loc[g["worst_rad"].idxmin()]
