@@ -1,0 +1,29 @@
+"""Every benchmark script in ``bench/`` imports (its imports follow the code they measure)
+and parses its default arguments: a refactor that moves what a benchmark uses fails here,
+not when someone next runs the benchmark. Nothing is timed."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parent.parent / "bench"
+#: Scripts whose optional extra may be missing: (script, the module it needs).
+NEEDS = {"panda_gym_compare": "panda_gym"}
+
+
+@pytest.mark.parametrize("path", sorted(BENCH.glob("*.py")), ids=lambda p: p.stem)
+def test_bench_script_imports_and_parses_its_defaults(path: Path, monkeypatch) -> None:
+    if path.stem in NEEDS:
+        pytest.importorskip(NEEDS[path.stem], reason=f"{path.stem} needs the 'bench' extra")
+    monkeypatch.syspath_prepend(str(BENCH))
+    spec = importlib.util.spec_from_file_location(f"bench_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, module)
+    spec.loader.exec_module(module)
+    assert callable(module.main)
+    if hasattr(module, "parse_args"):
+        module.parse_args([])
