@@ -35,7 +35,7 @@ from ptrack_gym.errors import ControllerDivergedError
 def require_finite_torque(tau_nm: FloatArray, controller: Controller, t_s: float) -> FloatArray:
     """``tau_nm`` if every entry is finite, else :class:`ControllerDivergedError` naming the
     controller, the time and the entries (a diverged controller, not a bad action)."""
-    if not np.all(np.isfinite(tau_nm)):
+    if not np.isfinite(tau_nm).all():  # the method: no Python-level reduction wrapper
         bad = np.flatnonzero(~np.isfinite(tau_nm)).tolist()
         raise ControllerDivergedError(
             f"{type(controller).__name__} returned a non-finite torque at t = {t_s:.4f} s "
