@@ -11,14 +11,18 @@ from pathlib import Path
 import pytest
 
 BENCH = Path(__file__).resolve().parent.parent / "bench"
-#: Scripts whose optional extra may be missing: (script, the module it needs).
-NEEDS = {"panda_gym_compare": "panda_gym"}
+#: Scripts whose optional extra may be missing: script → (the modules it needs, the extra).
+NEEDS = {
+    "panda_gym_compare": (("panda_gym",), "bench"),
+    "train_throughput": (("torch", "stable_baselines3"), "train"),
+}
 
 
 @pytest.mark.parametrize("path", sorted(BENCH.glob("*.py")), ids=lambda p: p.stem)
 def test_bench_script_imports_and_parses_its_defaults(path: Path, monkeypatch) -> None:
-    if path.stem in NEEDS:
-        pytest.importorskip(NEEDS[path.stem], reason=f"{path.stem} needs the 'bench' extra")
+    modules, extra = NEEDS.get(path.stem, ((), ""))
+    for name in modules:
+        pytest.importorskip(name, reason=f"{path.stem} needs the {extra!r} extra")
     monkeypatch.syspath_prepend(str(BENCH))
     spec = importlib.util.spec_from_file_location(f"bench_{path.stem}", path)
     module = importlib.util.module_from_spec(spec)
