@@ -10,7 +10,8 @@ count's wall time, episodes/s, speed-up over one worker and parallel efficiency
 running it once more and taken out. Process start-up is included in both: it is part of
 what a user waits for.
 
-Run: ``python bench/eval_scaling.py [--seeds 24] [--episode-s 8] [--max-workers N]``.
+Run: ``python bench/eval_scaling.py [--seeds 24] [--episode-s 8] [--max-workers N]
+[--config train/configs/main.yml]`` (``--config``: that sweep instead, plots off).
 """
 
 from __future__ import annotations
@@ -36,25 +37,21 @@ def worker_counts(cores: int) -> list[int]:
 
 
 def sweep_seconds(
-    workers: int, seeds: int, episode_s: float, folder: Path
+    workers: int, seeds: int, episode_s: float, folder: Path, config: Path | None = None
 ) -> tuple[float, float, int]:
-    """Wall time (s) of the benchmark sweep with ``workers`` processes, the time (s) of its
-    serial tail (summary, bootstrap intervals, report: timed by running it once more) and
-    the episode count."""
-    cfg = load_config(
-        None,
-        [
-            "env_id=ptrack_gym/TwoLinkTrack-v0",
-            "controllers=[computed_torque, passivity]",
-            "disturbances=[impulse, periodic]",
-            "levels=[1.0]",
-            f"seeds={seeds}",
-            f"episode_s={episode_s}",
-            "plots=false",
-            f"workers={workers}",
-            f"out={folder / f'w{workers}'}",
-        ],
-    )
+    """Wall time (s) of the benchmark sweep (or of the sweep of ``config``, without plots)
+    with ``workers`` processes, the time (s) of its serial tail (summary, bootstrap
+    intervals, report: timed by running it once more) and the episode count."""
+    small = [
+        "env_id=ptrack_gym/TwoLinkTrack-v0",
+        "controllers=[computed_torque, passivity]",
+        "disturbances=[impulse, periodic]",
+        "levels=[1.0]",
+        f"seeds={seeds}",
+        f"episode_s={episode_s}",
+    ]
+    run = ["plots=false", f"workers={workers}", f"out={folder / f'w{workers}'}"]
+    cfg = load_config(config, run if config is not None else [*small, *run])
     t0 = time.perf_counter()
     run_sweep(cfg, progress=False, show=False)
     wall = time.perf_counter() - t0
@@ -70,12 +67,17 @@ def main() -> None:
     parser.add_argument(
         "--max-workers", type=int, default=None, help="default: the cores this process may use"
     )
+    parser.add_argument(
+        "--config", type=Path, default=None, help="time this evaluation config instead"
+    )
     args = parser.parse_args()
     cores = args.max_workers or len(os.sched_getaffinity(0))
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for workers in worker_counts(cores):
-            wall, tail, n = sweep_seconds(workers, args.seeds, args.episode_s, Path(tmp))
+            wall, tail, n = sweep_seconds(
+                workers, args.seeds, args.episode_s, Path(tmp), args.config
+            )
             rows.append((workers, n, wall, tail))
     base, base_tail = rows[0][2], rows[0][3]
     print(f"cores available: {len(os.sched_getaffinity(0))}")

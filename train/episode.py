@@ -30,6 +30,7 @@ from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker, TimeLimit
 
 import ptrack_gym  # noqa: F401  (registers the envs)
 from agents.policy import ControllerPolicy
@@ -183,7 +184,11 @@ def _first_impulse_end(schedule: list[dict[str, Any]]) -> float | None:
 
 
 def rollout(
-    env: gym.Env[Any, Any], policy: Predictor, reset_seed: int, keep_trace: bool = False
+    env: gym.Env[Any, Any],
+    policy: Predictor,
+    reset_seed: int,
+    keep_trace: bool = False,
+    lean: bool = True,
 ) -> tuple[EpisodeRecord, np.ndarray | None]:
     """One episode of ``policy`` on ``env`` from ``env.reset(seed=reset_seed)`` until it
     terminates or is truncated: the :class:`EpisodeRecord` and, with ``keep_trace``, the
@@ -191,22 +196,46 @@ def rollout(
     NaN for other policies). A controller that diverges (a non-finite torque,
     :class:`~ptrack_gym.errors.ControllerDivergedError`) ends the episode as unstable at
     the step it would have taken. The one episode loop of the package, for anything with SB3's
+    ``predict``.
+
+    With ``lean`` (default), a :class:`~agents.policy.ControllerPolicy` on an env that
+    ``gym.make`` wrapped only in ``TimeLimit``, ``OrderEnforcing`` and ``PassiveEnvChecker``
+    runs on ``env.unwrapped`` with the policy's ``action`` and the time limit counted here:
+    the same calls in the same order as the wrapped loop, so the episode is bit-identical
+    (tested), about 20% cheaper per step. Anything else runs through ``env`` and
     ``predict``."""
     u = env.unwrapped
     rows: dict[str, list[Any]] = {
         k: [] for k in ("t", "q", "qd", "s_ref", "tau", "d", "path_s", "energy")
     }
     unstable, info = False, {}
-    obs, _ = env.reset(seed=reset_seed)
-    episode_start = np.ones(1, dtype=bool)
+    limit = _lean_limit(env, policy) if lean else None
+    if limit is not None:  # the same calls, in the same order, without the layers around
+        assert isinstance(policy, ControllerPolicy)
+        obs, _ = u.reset(seed=reset_seed)
+        policy.reset_controller(obs)  # what predict does when episode_start is set
+        act, step = policy.action, u.step
+    else:
+        obs, _ = env.reset(seed=reset_seed)
+        starts = [np.ones(1, dtype=bool)]
+
+        def act(observation: np.ndarray) -> np.ndarray:
+            action, _ = policy.predict(observation, episode_start=starts[0], deterministic=True)
+            starts[0] = np.zeros(1, dtype=bool)
+            return action
+
+        step = env.step
+    steps = 0
     while True:
         try:
-            action, _ = policy.predict(obs, episode_start=episode_start, deterministic=True)
+            action = act(obs)
         except ControllerDivergedError:  # a non-finite torque: the closed loop is unstable
             unstable = True
             break
-        episode_start = np.zeros(1, dtype=bool)
-        obs, _, terminated, truncated, info = env.step(action)
+        obs, _, terminated, truncated, info = step(action)
+        steps += 1
+        if limit is not None and steps >= limit:  # gymnasium's TimeLimit, inlined
+            truncated = True
         q, qd = u.joint_state()
         rows["t"].append(info["t_s"])
         rows["q"].append(q)
@@ -239,6 +268,25 @@ def rollout(
         path_s=np.array(rows["path_s"]),
     )
     return record, (np.array(rows["energy"]) if keep_trace else None)
+
+
+#: The wrappers ``gym.make`` adds that change no number of an episode run to its end.
+_PASSIVE_WRAPPERS = (TimeLimit, OrderEnforcing, PassiveEnvChecker)
+
+
+def _lean_limit(env: gym.Env[Any, Any], policy: Predictor) -> int | None:
+    """The step limit of ``env``'s ``TimeLimit`` when :func:`rollout` may run ``policy``
+    on ``env.unwrapped`` (see there), else None."""
+    if not isinstance(policy, ControllerPolicy) or policy.env is not env.unwrapped:
+        return None
+    limit, layer = None, env
+    while isinstance(layer, gym.Wrapper):
+        if not isinstance(layer, _PASSIVE_WRAPPERS):
+            return None
+        if isinstance(layer, TimeLimit):
+            limit = layer._max_episode_steps
+        layer = layer.env
+    return limit
 
 
 def run_episode(
