@@ -6,7 +6,7 @@ process may use (``os.sched_getaffinity``; the last count is the core count itse
 it is not a power of two), each into a temporary folder, in one run. It prints each
 count's wall time, episodes/s, speed-up over one worker and parallel efficiency
 (speed-up / workers), and the speed-up of the episodes alone: the sweep's serial tail
-(summary, bootstrap intervals, report; about 2 s, the same for every count) timed by
+(summary, bootstrap intervals, report; about 1 s, the same for every count) timed by
 running it once more and taken out. Process start-up is included in both: it is part of
 what a user waits for.
 

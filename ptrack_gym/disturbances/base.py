@@ -121,6 +121,12 @@ class Disturbance:
         """Plant link mass changes in force at ``t_s`` (None: this one changes nothing)."""
         return None
 
+    def plant_change_times(self) -> tuple[float, ...] | None:
+        """The times (s) at which :meth:`plant` changes its value this episode, between
+        which it is constant (a change at c holds on [c, next change)); None: it may change
+        at any time, so the plant is recomputed every control step."""
+        return None
+
     def actuate(self, tau_nm: FloatArray) -> FloatArray:
         """The torque the actuators really produce for the command ``tau_nm``."""
         return tau_nm

@@ -365,6 +365,9 @@ class Payload(Disturbance):
         held = self._pick <= t_s < self._drop
         return {self._link: MassChange(added_kg=self.mass_kg if held else 0.0)}
 
+    def plant_change_times(self) -> tuple[float, ...]:
+        return tuple(t for t in (self._pick, self._drop) if np.isfinite(t))
+
     def schedule(self) -> dict[str, Any]:
         return {
             "link": self._link,
@@ -405,6 +408,9 @@ class Mismatch(Disturbance):
 
     def plant(self, t_s: float) -> dict[str, MassChange] | None:
         return {link: MassChange(scale=s) for link, s in self._scales.items()}
+
+    def plant_change_times(self) -> tuple[float, ...]:
+        return ()  # drawn once per episode, constant from its start
 
     def acts_during(self, t0_s: float, t1_s: float) -> bool:
         return self.damping_per_s > 0.0 or self.friction_rad_s2 > 0.0

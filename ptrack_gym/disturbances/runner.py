@@ -48,6 +48,7 @@ class DisturbanceRunner:
         self.work_j = 0.0
         self.last_torque_nm = np.zeros(n)
         self._was_reset = False
+        self._plant_window = (np.inf, -np.inf)  # [from, until) the applied plant holds
 
     def validate(self, ctx: DisturbanceContext) -> None:
         """Check every disturbance against the env (links, directions); raises
@@ -69,6 +70,7 @@ class DisturbanceRunner:
         self.work_j = 0.0
         self.last_torque_nm = np.zeros(self.n)
         self._was_reset = True
+        self._plant_window = (np.inf, -np.inf)  # the new schedule is applied at once
 
     @property
     def senses(self) -> bool:
@@ -101,11 +103,32 @@ class DisturbanceRunner:
                 out[link] = MassChange(old.scale * ch.scale, old.added_kg + ch.added_kg)
         return out
 
-    def apply_plant(self, arm: BulletArm, t_s: float) -> None:
+    def apply_plant(self, arm: BulletArm, t_s: float, force: bool = False) -> None:
         """Set the plant's link masses to those in force at ``t_s`` (no-op without a
-        plant-changing disturbance)."""
-        if self._editors:
-            arm.set_mass_changes({k: (v.scale, v.added_kg) for k, v in self.plant(t_s).items()})
+        plant-changing disturbance). Between the editors' change times the plant is
+        constant, so nothing is recomputed there unless ``force`` (a new arm body: one
+        rebuilt after unpickling, or reset to nominal)."""
+        if not self._editors:
+            return
+        if not force and self._plant_window[0] <= t_s < self._plant_window[1]:
+            return
+        arm.set_mass_changes({k: (v.scale, v.added_kg) for k, v in self.plant(t_s).items()})
+        self._plant_window = self._plant_interval(t_s)
+
+    def _plant_interval(self, t_s: float) -> tuple[float, float]:
+        """[from, until) around ``t_s`` in which no editor changes the plant; empty when
+        one may change it at any time."""
+        lo, hi = -np.inf, np.inf
+        for d in self._editors:
+            times = d.plant_change_times()
+            if times is None:
+                return (np.inf, -np.inf)
+            for c in times:
+                if c <= t_s:
+                    lo = max(lo, c)
+                else:
+                    hi = min(hi, c)
+        return (lo, hi)
 
     def step(
         self,

@@ -321,4 +321,4 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         self.runner = state["runner"]
         self.runner.set_context(self.disturbance_context)
         if self.runner.was_reset:
-            self.runner.apply_plant(self.arm, self.t)
+            self.runner.apply_plant(self.arm, self.t, force=True)  # a new, nominal body
