@@ -202,7 +202,7 @@ def rollout(
     ``gym.make`` wrapped only in ``TimeLimit``, ``OrderEnforcing`` and ``PassiveEnvChecker``
     runs on ``env.unwrapped`` with the policy's ``action`` and the time limit counted here:
     the same calls in the same order as the wrapped loop, so the episode is bit-identical
-    (tested), about 20% cheaper per step. Anything else runs through ``env`` and
+    (tested), 2–3 µs (7–9%) cheaper per step on the iiwa. Anything else runs through ``env`` and
     ``predict``."""
     u = env.unwrapped
     rows: dict[str, list[Any]] = {
