@@ -51,6 +51,7 @@ from agents.policy import ControllerPolicy
 from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, make_controller, tuned_rates
 from ptrack_gym.errors import InvalidConfigError, PtrackError
 from ptrack_gym.robots import profile_for_env_id
+from train.config_files import config_data
 from train.episode import rollout
 
 #: The families the search can drive, with what it searches.
@@ -562,16 +563,7 @@ def replay(worst_yml: Path, controller: str, family: str, energy_j: float) -> Ou
 
 def load_config(path: Path | None, overrides: Sequence[str]) -> AdversaryConfig:
     """The config of a YAML file, with ``key=value`` overrides; unknown keys raise."""
-    data: dict[str, Any] = yaml.safe_load(path.read_text()) if path is not None else {}
-    for item in overrides:
-        if "=" not in item:
-            raise InvalidConfigError(f"--set expects key=value, got {item!r}")
-        key, value = item.split("=", 1)
-        data[key.strip()] = yaml.safe_load(value)
-    known = {f.name for f in dataclasses.fields(AdversaryConfig)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise InvalidConfigError(f"unknown config key(s) {unknown}; known: {sorted(known)}")
+    data = config_data(AdversaryConfig, path, overrides)
     for key in ("onset_s", "frequency_hz"):
         if key in data:
             data[key] = tuple(data[key])

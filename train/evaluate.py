@@ -24,22 +24,20 @@ with ``--set key=value`` (value parsed as YAML) or its own flag.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import importlib.util
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
-import yaml
 
 from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
 from ptrack_gym.disturbances import PRESETS
 from ptrack_gym.errors import InvalidConfigError, PtrackError
 from ptrack_gym.metrics import METRIC_NAMES
 from ptrack_gym.robots import profile_for_env_id
+from train.config_files import config_data
 from train.envs import check_env_kwargs, env_kwargs
 from train.episode import SB3_PREFIX, EpisodeSettings, Task
 
@@ -190,19 +188,7 @@ def require_extra(module: str, extra: str, what: str) -> None:
 def load_config(path: Path | None, overrides: Sequence[str], validate: bool = True) -> EvalConfig:
     """The config of a YAML file, with ``key=value`` overrides; unknown keys raise; with
     ``validate``, every field is checked (:meth:`EvalConfig.validate`)."""
-    data: dict[str, Any] = {}
-    if path is not None:
-        data = yaml.safe_load(path.read_text()) or {}
-    for item in overrides:
-        if "=" not in item:
-            raise InvalidConfigError(f"--set expects key=value, got {item!r}")
-        key, value = item.split("=", 1)
-        data[key.strip()] = yaml.safe_load(value)
-    known = {f.name for f in dataclasses.fields(EvalConfig)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise InvalidConfigError(f"unknown config key(s) {unknown}; known: {sorted(known)}")
-    cfg = EvalConfig(**data)
+    cfg = EvalConfig(**config_data(EvalConfig, path, overrides))
     if validate:
         cfg.validate()
     return cfg

@@ -41,6 +41,7 @@ from agents.registry import GAIN_CHOICES, RATE_MODULES, scaled_rates
 from ptrack_gym.disturbances import PRESETS
 from ptrack_gym.errors import InvalidConfigError, PtrackError
 from ptrack_gym.robots import profile_for_env_id
+from train.config_files import config_data
 from train.episode import EpisodeSettings, Task, run_episode
 from train.results import bootstrap_ci
 
@@ -324,17 +325,7 @@ def run_fronts(cfg: FrontConfig, resume: bool = False, progress: bool = True) ->
 
 def load_config(path: Path | None, overrides: Sequence[str]) -> FrontConfig:
     """The config of a YAML file, with ``key=value`` overrides; unknown keys raise."""
-    data: dict[str, Any] = yaml.safe_load(path.read_text()) if path is not None else {}
-    for item in overrides:
-        if "=" not in item:
-            raise InvalidConfigError(f"--set expects key=value, got {item!r}")
-        key, value = item.split("=", 1)
-        data[key.strip()] = yaml.safe_load(value)
-    known = {f.name for f in dataclasses.fields(FrontConfig)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise InvalidConfigError(f"unknown config key(s) {unknown}; known: {sorted(known)}")
-    return FrontConfig(**data)
+    return FrontConfig(**config_data(FrontConfig, path, overrides))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -24,6 +24,7 @@ from stable_baselines3.common.utils import LinearSchedule
 from torch import nn
 
 from ptrack_gym.errors import InvalidConfigError
+from train import config_files
 from train.sb3_runs import ALGOS
 
 #: The packaged hyperparameter files, ``<algo>.yml``.
@@ -95,14 +96,11 @@ def parse_python_literal(text: str) -> Any:
 
 
 def parse_set(items: Sequence[str]) -> dict[str, Any]:
-    """``["key=value", ...]`` → dict; values are read as YAML scalars (``1e-3`` → float)."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise TrainConfigError(f"--set expects key=value, got {item!r}")
-        out[key.strip()] = yaml.safe_load(value)
-    return out
+    """:func:`train.config_files.parse_set`, raising :class:`TrainConfigError`."""
+    try:
+        return config_files.parse_set(items)
+    except InvalidConfigError as exc:
+        raise TrainConfigError(str(exc)) from None
 
 
 def _read_yaml(path: Path) -> dict[str, Any]:

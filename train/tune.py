@@ -50,6 +50,7 @@ from agents.registry import TUNABLE, TUNED_DIR
 from ptrack_gym.disturbances import PRESETS
 from ptrack_gym.errors import InvalidConfigError, PtrackError
 from ptrack_gym.robots import profile_for_env_id
+from train.config_files import config_data
 from train.episode import EpisodeSettings, Task, run_episode
 
 DEFAULT_TEST_CONFIG = Path(__file__).parent / "configs" / "main.yml"
@@ -346,17 +347,7 @@ def tuned_table(tuned_dir: Path = TUNED_DIR) -> str:
 
 def load_config(path: Path | None, overrides: Sequence[str]) -> TuneConfig:
     """The config of a YAML file, with ``key=value`` overrides; unknown keys raise."""
-    data: dict[str, Any] = yaml.safe_load(path.read_text()) if path is not None else {}
-    for item in overrides:
-        if "=" not in item:
-            raise InvalidConfigError(f"--set expects key=value, got {item!r}")
-        key, value = item.split("=", 1)
-        data[key.strip()] = yaml.safe_load(value)
-    known = {f.name for f in dataclasses.fields(TuneConfig)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise InvalidConfigError(f"unknown config key(s) {unknown}; known: {sorted(known)}")
-    return TuneConfig(**data)
+    return TuneConfig(**config_data(TuneConfig, path, overrides))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
