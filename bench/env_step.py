@@ -75,9 +75,10 @@ def median_rates(
     return [statistics.median(column) for column in rates]
 
 
-def env_runner(env: gym.Env[np.ndarray, np.ndarray]) -> Callable[[int], None]:
-    """A function stepping ``env`` with a zero action ``k`` times (resetting if it ends)."""
-    action = np.zeros(env.action_space.shape, dtype=np.float32)
+def env_runner(env: gym.Env[np.ndarray, np.ndarray], fill: float = 0.0) -> Callable[[int], None]:
+    """A function stepping ``env`` ``k`` times with one action, every entry ``fill`` (zero by
+    default), resetting if an episode ends."""
+    action = np.full(env.action_space.shape, fill, dtype=np.float32)
     env.reset(seed=0)
 
     def run(k: int) -> None:

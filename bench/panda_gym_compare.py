@@ -13,27 +13,11 @@ Run: ``python bench/panda_gym_compare.py [--steps 1000] [--repeats 5]``.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
 
 import gymnasium as gym
-import numpy as np
 from env_step import env_runner, median_rates
 
 import ptrack_gym  # noqa: F401  (registers the envs)
-
-
-def panda_gym_runner(env: gym.Env) -> Callable[[int], None]:
-    """``k`` steps of a panda-gym env with one fixed action (reset when an episode ends)."""
-    action = np.full(env.action_space.shape, 0.1, dtype=np.float32)
-    env.reset(seed=0)
-
-    def run(k: int) -> None:
-        for _ in range(k):
-            _, _, terminated, truncated, _ = env.step(action)
-            if terminated or truncated:
-                env.reset()
-
-    return run
 
 
 def main() -> None:
@@ -50,7 +34,7 @@ def main() -> None:
     sim = reach.unwrapped.sim
     ours = {hz: gym.make("ptrack_gym/PandaTrack-v0", control_hz=hz) for hz in (1000.0, 100.0)}
     try:
-        runs = [panda_gym_runner(reach)] + [env_runner(env) for env in ours.values()]
+        runs = [env_runner(reach, fill=0.1)] + [env_runner(env) for env in ours.values()]
         rates = median_rates(runs, args.steps, args.repeats, args.warmup)
     finally:
         reach.close()
