@@ -31,9 +31,8 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
-from train.results import iqm
+from train.results import bootstrap_ci, iqm
 
 #: The family-wise error rate of a report's marks.
 ALPHA = 0.05
@@ -49,28 +48,6 @@ def cvar(values: np.ndarray, fraction: float = TAIL_FRACTION) -> float:
         return float("nan")
     k = max(1, math.ceil(fraction * x.size))
     return float(np.mean(x[-k:]))
-
-
-def paired_interval(
-    diff: np.ndarray, confidence: float, resamples: int, seed: int
-) -> tuple[float, float]:
-    """Percentile-bootstrap interval of the mean of paired differences at ``confidence``
-    (a point when every difference is equal; NaN for fewer than 2)."""
-    diff = diff[np.isfinite(diff)]
-    if diff.size < 2:
-        return float("nan"), float("nan")
-    if np.ptp(diff) == 0.0:
-        return float(diff[0]), float(diff[0])
-    res = stats.bootstrap(
-        (diff,),
-        np.mean,
-        n_resamples=resamples,
-        confidence_level=confidence,
-        method="percentile",
-        vectorized=True,
-        rng=np.random.default_rng(seed),
-    )
-    return float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
 def paired_comparisons(
@@ -101,7 +78,7 @@ def paired_comparisons(
             x = cond[cond["controller"] == ctrl].set_index(_KEY)[metric]
             common = x.index.intersection(ref.index)
             diff = x.loc[common].to_numpy(float) - ref.loc[common].to_numpy(float)
-            lo, hi = paired_interval(diff, confidence, resamples, seed)
+            lo, hi = bootstrap_ci(diff, np.mean, resamples, seed, confidence)
             if not (np.isfinite(lo) and np.isfinite(hi)):
                 mark = "unresolved"
             elif hi < 0:

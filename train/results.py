@@ -112,10 +112,10 @@ def iqm(x: np.ndarray, axis: int = -1) -> np.ndarray:
 
 
 def bootstrap_ci(
-    values: np.ndarray, statistic: Any, resamples: int, seed: int
+    values: np.ndarray, statistic: Any, resamples: int, seed: int, confidence: float = 0.95
 ) -> tuple[float, float]:
-    """95% percentile-bootstrap interval of ``statistic`` over the finite values; NaN for
-    fewer than 2 values, a point for identical ones."""
+    """Percentile-bootstrap interval at ``confidence`` (95% by default) of ``statistic`` over
+    the finite values; NaN for fewer than 2 values, a point for identical ones."""
     values = values[np.isfinite(values)]
     if len(values) < 2:
         return float("nan"), float("nan")
@@ -126,7 +126,7 @@ def bootstrap_ci(
         (values,),
         statistic,
         n_resamples=resamples,
-        confidence_level=0.95,
+        confidence_level=confidence,
         method="percentile",
         vectorized=True,
         rng=np.random.default_rng(seed),
