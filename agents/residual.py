@@ -54,7 +54,18 @@ with r_max = 2 v_max + 2π max Λ. Each controller supplies its block through it
 ``residual_features`` method (:class:`~agents.base.HasResidualFeatures`); a controller
 without one gets n entries, the last τ_base / τ_max.
 
-Info (every step): ``tau_base_nm`` τ_base, ``tau_residual_nm`` scale ⊙ clip(a, −1, 1)
+Safeguards (both off by default, so a = 0 stays bit-identical to the base):
+
+* ``action_penalty`` w ≥ 0 — a penalty on the *learned part only*: the reward becomes
+  r + w (1 − |clip(a)|²/n). The constant w keeps a bounded (``reward="kernel"``) reward
+  ≥ 0, so ending an episode early still never pays; ``info["reward_residual"]`` is the
+  added term.
+* ``gate_rad`` d_g > 0 — a residual gated by the path error: τ_res = γ(d) scale ⊙ a with
+  γ(d) = 1 − exp(−(d/d_g)²), d the path distance of the measured state (rad). On the
+  path the residual is inactive whatever the policy outputs; ``info["residual_gate"]``
+  is γ.
+
+Info (every step): ``tau_base_nm`` τ_base, ``tau_residual_nm`` γ scale ⊙ clip(a, −1, 1)
 (N·m, before the env's own clipping of the sum to τ_max), ``controller`` the
 controller's ``diagnostics()``; reset's info has ``controller`` too.
 
@@ -81,6 +92,23 @@ from ptrack_gym.errors import InvalidActionError, InvalidConfigError
 DEFAULT_SCALE_FRACTION = 0.1
 #: Bound of the "last τ_base / τ_max" features: beyond ±2 only "saturated" matters.
 _BASE_RATIO_BOUND = 2.0
+
+
+def check_safeguards(action_penalty: float, gate_rad: float | None) -> None:
+    """Raise :class:`InvalidConfigError` unless ``action_penalty`` is a finite real ≥ 0 and
+    ``gate_rad`` is None or a finite real > 0 (rad)."""
+    if (
+        isinstance(action_penalty, bool)
+        or not (isinstance(action_penalty, (int, float)) and math.isfinite(action_penalty))
+        or action_penalty < 0
+    ):
+        raise InvalidConfigError(f"action_penalty must be finite and >= 0, got {action_penalty!r}")
+    if gate_rad is not None and (
+        isinstance(gate_rad, bool)
+        or not isinstance(gate_rad, (int, float))
+        or not (math.isfinite(gate_rad) and gate_rad > 0)
+    ):
+        raise InvalidConfigError(f"gate_rad must be None or finite and > 0, got {gate_rad!r}")
 
 
 class ControllerFeatures:
@@ -136,6 +164,8 @@ class ResidualWrapper(
             and ≥ 0; None (default) → ``DEFAULT_SCALE_FRACTION`` · τ_max.
         include_controller_state: append the controller's feature vector to the
             observation (default True).
+        action_penalty: w ≥ 0 of the penalty on the learned part (module docstring).
+        gate_rad: d_g (rad) of the path-error gate; None (default): no gate.
 
     Raises:
         InvalidConfigError: (a ``ValueError``) a joint-count mismatch or a bad scale.
@@ -147,6 +177,8 @@ class ResidualWrapper(
         controller: Controller | str,
         scale_nm: float | FloatArray | None = None,
         include_controller_state: bool = True,
+        action_penalty: float = 0.0,
+        gate_rad: float | None = None,
     ) -> None:
         self._controller_name = controller if isinstance(controller, str) else None
         if self._controller_name is not None:
@@ -155,6 +187,8 @@ class ResidualWrapper(
                 controller=controller,
                 scale_nm=scale_nm,
                 include_controller_state=include_controller_state,
+                action_penalty=action_penalty,
+                gate_rad=gate_rad,
             )
         super().__init__(env)
         u = env.unwrapped
@@ -178,6 +212,9 @@ class ResidualWrapper(
         if not (np.all(np.isfinite(scale)) and np.all(scale >= 0.0)):
             raise InvalidConfigError(f"scale_nm must be finite and >= 0, got {scale.tolist()}")
         self.scale_nm = scale
+        check_safeguards(action_penalty, gate_rad)
+        self.action_penalty = float(action_penalty)
+        self.gate_rad = None if gate_rad is None else float(gate_rad)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(self.n,), dtype=np.float32)
 
         inner = env.observation_space
@@ -244,9 +281,20 @@ class ResidualWrapper(
             info = {"unstable": True, "controller_diverged": True, "t_s": u.t}
             penalty = -float(u.config.unstable_penalty)
             return self._last_obs, penalty, True, False, info
-        tau_res = self.scale_nm * np.minimum(np.maximum(a, -1.0), 1.0)  # (n,) N·m
+        a = np.minimum(np.maximum(a, -1.0), 1.0)
+        gate = 1.0
+        if self.gate_rad is not None:
+            d = u.projector.nearest(q).distance
+            gate = -math.expm1(-((d / self.gate_rad) ** 2))  # γ = 1 − exp(−(d/d_g)²)
+        tau_res = (gate * self.scale_nm) * a if self.gate_rad is not None else self.scale_nm * a
         inner_action = torque_to_action(tau_base + tau_res, self.torque_limits_nm)
         obs, reward, terminated, truncated, info = self.env.step(inner_action)
+        if self.action_penalty > 0.0:
+            bonus = self.action_penalty * (1.0 - float(a @ a) / self.n)
+            reward = float(reward) + bonus
+            info["reward_residual"] = bonus
+        if self.gate_rad is not None:
+            info["residual_gate"] = gate
         self._base_ratio = tau_base / self.torque_limits_nm
         info["tau_base_nm"] = tau_base
         info["tau_residual_nm"] = tau_res
@@ -260,11 +308,14 @@ def make_residual_env(
     base: str = "passivity",
     scale_fraction: float = DEFAULT_SCALE_FRACTION,
     include_controller_state: bool = True,
+    action_penalty: float = 0.0,
+    gate_rad: float | None = None,
     **env_kwargs: Any,
 ) -> ResidualWrapper:
     """``gym.make(env_id, **env_kwargs)`` wrapped in a :class:`ResidualWrapper` around
     the default-gain controller ``base`` (one of ``agents.registry.CONTROLLER_NAMES``),
-    with scale = ``scale_fraction`` · τ_max (N·m).
+    with scale = ``scale_fraction`` · τ_max (N·m) and the wrapper's ``action_penalty``
+    and ``gate_rad``.
 
     ``env_kwargs`` go to ``gym.make`` (env arguments such as ``control_hz``,
     ``disturbance``, and ``max_episode_steps``), which rejects unknown names.
@@ -280,7 +331,9 @@ def make_residual_env(
     try:
         limits = np.asarray(env.unwrapped.torque_limits_nm, dtype=np.float64)
         scale_nm = tuple(float(x) for x in scale_fraction * limits)
-        return ResidualWrapper(env, base, scale_nm, include_controller_state)
+        return ResidualWrapper(
+            env, base, scale_nm, include_controller_state, action_penalty, gate_rad
+        )
     except BaseException:
         env.close()
         raise

@@ -246,3 +246,82 @@ def test_reward_weights_reach_the_training_env() -> None:
     assert info["reward_time"] == 0.0
     assert reward == info["reward_path"] + info["reward_effort"]
     env.close()
+
+
+def test_critic_warmup_freezes_the_actor_and_zero_actor_runs_the_base(tmp_path: Path) -> None:
+    """With ``--zero-init-residual --critic-warmup-steps`` covering the whole run, the critic
+    learns (updates are made) while the actor stays exactly as initialised: zero mean, the
+    ``--init-log-std`` head; its deterministic actions are exactly 0, so its episode is
+    the base controller's, bit for bit. Without the warm-up the same run moves the actor."""
+    common = ["--zero-init-residual", "--init-log-std", "-3", "--set", "learning_starts=0"]
+    frozen = run(parse_args(argv(tmp_path / "f", "sac", "passivity", 120, *common,
+                                 "--critic-warmup-steps", "500")))  # fmt: skip
+    free = run(parse_args(argv(tmp_path / "u", "sac", "passivity", 120, *common)))
+    actor = frozen.model.policy.actor
+    assert frozen.model._n_updates > 0
+    with torch.no_grad():
+        assert float(actor.mu.weight.abs().max()) == 0.0
+        assert float(actor.mu.bias.abs().max()) == 0.0
+        assert float(actor.log_std.weight.abs().max()) == 0.0
+        np.testing.assert_array_equal(actor.log_std.bias.numpy(), [-3.0, -3.0])
+        assert float(free.model.policy.actor.mu.weight.abs().max()) > 0.0
+    assert all(p.requires_grad for p in actor.parameters())  # released at the end
+
+    model = SAC.load(str(tmp_path / "f" / "model.zip"), device="cpu")
+    learned = build_env("ptrack_gym/TwoLinkTrack-v0", "passivity", 0.1, 250.0, 50, "on_path", None)
+    base = build_env("ptrack_gym/TwoLinkTrack-v0", "passivity", 0.1, 250.0, 50, "on_path", None)
+    obs, _ = learned.reset(seed=5)
+    obs_base, _ = base.reset(seed=5)
+    for _ in range(50):
+        action, _ = model.predict(obs, deterministic=True)
+        np.testing.assert_array_equal(action, np.zeros(2, dtype=np.float32))
+        obs, r, *_ = learned.step(action)
+        obs_base, r_base, *_ = base.step(np.zeros(2))
+        np.testing.assert_array_equal(obs, obs_base)
+        assert r == r_base
+    learned.close()
+    base.close()
+
+
+def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
+    res = validate(
+        parse_args(argv(tmp_path / "k", "sac", "computed_torque", 10, "--reward", "kernel",
+                        "--kernel-weights", "1", "0", "0", "--max-path-distance", "0.3",
+                        "--action-penalty", "0.05", "--gate-rad", "0.02"))
+    )  # fmt: skip
+    assert res.env_extra == {
+        "reward": "kernel",
+        "kernel_weights": (1.0, 0.0, 0.0),
+        "max_path_distance_rad": 0.3,
+    }
+    assert res.residual_kwargs == {"action_penalty": 0.05, "gate_rad": 0.02}
+    from train.train import _env_factory
+
+    env = _env_factory(res, "none")()
+    cfg = env.unwrapped.config
+    assert (cfg.reward, cfg.kernel_weights, cfg.max_path_distance_rad) == (
+        "kernel", (1.0, 0.0, 0.0), 0.3,
+    )  # fmt: skip
+    assert (env.action_penalty, env.gate_rad) == (0.05, 0.02)
+    env.close()
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [
+        ["--residual", "none", "--action-penalty", "0.1"],
+        ["--residual", "none", "--gate-rad", "0.1"],
+        ["--action-penalty", "-1"],
+        ["--gate-rad", "0"],
+        ["--algo", "ppo", "--critic-warmup-steps", "10"],
+        ["--algo", "td3", "--init-log-std", "-3"],
+        ["--critic-warmup-steps", "-1"],
+        ["--reward", "kernel", "--kernel-weights", "0", "0", "0"],
+        ["--max-path-distance", "-0.1"],
+    ],
+)
+def test_bad_safeguard_options_raise_before_anything_runs(tmp_path: Path, extra: list[str]) -> None:
+    args = ["--out", str(tmp_path / "x"), "--residual", "passivity", *extra]
+    with pytest.raises(TrainConfigError):
+        validate(parse_args(args))
+    assert not (tmp_path / "x").exists()

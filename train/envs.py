@@ -7,7 +7,7 @@ Env arguments are validated by the env's own validator,
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -38,9 +38,11 @@ def env_kwargs(
     start: str,
     disturbance: str | None,
     reward_weights: Sequence[float] | None = None,
+    extra: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """``gym.make`` keyword arguments of a script's env: the disturbances' horizon (energy
-    budgets of sustained torques, onsets) is the episode length."""
+    budgets of sustained torques, onsets) is the episode length; ``extra`` adds further env
+    arguments (``reward``, ``max_path_distance_rad``, ...), checked by the env."""
     kwargs: dict[str, Any] = {
         "control_hz": control_hz,
         "start": start,
@@ -50,6 +52,7 @@ def env_kwargs(
     }
     if reward_weights is not None:
         kwargs["reward_weights"] = tuple(reward_weights)
+    kwargs.update(extra or {})
     return kwargs
 
 
@@ -77,12 +80,15 @@ def build_env(
     start: str,
     disturbance: str | None,
     reward_weights: Sequence[float] | None = None,
+    extra: Mapping[str, Any] | None = None,
+    residual_kwargs: Mapping[str, Any] | None = None,
 ) -> gym.Env[Any, Any]:
     """One training or evaluation env: ``gym.make`` (``residual="none"``) or the residual
-    wrapper around the default-gain controller ``residual``."""
-    kwargs = env_kwargs(control_hz, max_episode_steps, start, disturbance, reward_weights)
+    wrapper around the default-gain controller ``residual`` (``residual_kwargs``: the
+    wrapper's ``action_penalty``, ``gate_rad``); ``extra`` as in :func:`env_kwargs`."""
+    kwargs = env_kwargs(control_hz, max_episode_steps, start, disturbance, reward_weights, extra)
     if residual == "none":
         return gym.make(env_id, **kwargs)
     from agents.residual import make_residual_env
 
-    return make_residual_env(env_id, residual, scale_fraction, **kwargs)
+    return make_residual_env(env_id, residual, scale_fraction, **(residual_kwargs or {}), **kwargs)

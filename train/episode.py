@@ -172,6 +172,12 @@ def _sb3_env_and_policy(
             round(settings.episode_s * derived["control_hz"]),
             settings.start,
             _disturbance_text(disturbance, level),
+            residual_kwargs={  # the gate acts on the torque; the penalty only on the reward
+                "action_penalty": float(c.get("action_penalty", 0.0)),
+                "gate_rad": c.get("gate_rad"),
+            }
+            if c["residual"] != "none"
+            else None,
         )
         return env, policy
 

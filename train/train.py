@@ -52,6 +52,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 from torch import nn
 
 from agents.registry import CONTROLLER_NAMES
+from agents.residual import check_safeguards
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
 from train.checkpoints import (
@@ -144,6 +145,25 @@ class TrainConfig:
     reward_weights: list[float] | None = None
     """The env's reward weights [path, time, effort] (see ``TrackingEnv``); None → the
     env's default (10, 1, 0.01). The evaluation env uses the same."""
+    reward: str = "quadratic"
+    """The env's reward: "quadratic" (its default, unbounded) or "kernel" (bounded in [0, 1],
+    ``ptrack_gym.envs.rewards``). The evaluation env uses the same."""
+    kernel_weights: list[float] | None = None
+    """With ``reward="kernel"``: its weights [path, time, effort]; None → the env's default
+    (0.5, 0.4, 0.1)."""
+    max_path_distance: float | None = None
+    """End a training episode when the path distance exceeds this (rad); None: never."""
+    action_penalty: float = 0.0
+    """Residual only: w of the penalty on the learned part, r + w (1 − |a|²/n)."""
+    gate_rad: float | None = None
+    """Residual only: gate the residual by the path error, γ = 1 − exp(−(d/gate_rad)²)."""
+    init_log_std: float | None = None
+    """SAC only: the actor's log-std layer starts constant at this value (exploration
+    std exp(init_log_std) before tanh); None: SB3's initialisation."""
+    critic_warmup_steps: int = 0
+    """Off-policy only: the actor is frozen (its parameters get no update) for this many
+    steps after ``learning_starts`` while the critic learns from what it does; with
+    ``--zero-init-residual`` that is the base controller plus exploration noise."""
     torch_threads: int = 1
     """``torch.set_num_threads`` (the machines are shared: keep 1)."""
     device: str = "cpu"
@@ -173,6 +193,8 @@ class Resolved(NamedTuple):
     steps: int
     n_envs: int
     normalize_kwargs: dict[str, Any] | None  # None: no VecNormalize
+    env_extra: dict[str, Any]  # further env arguments (reward mode, off-path end)
+    residual_kwargs: dict[str, Any]  # the residual wrapper's safeguards
 
 
 def validate(cfg: TrainConfig) -> Resolved:
@@ -191,6 +213,22 @@ def validate(cfg: TrainConfig) -> Resolved:
         raise TrainConfigError(f"scale_fraction must be >= 0, got {cfg.scale_fraction}")
     if not (math.isfinite(cfg.episode_s) and cfg.episode_s > 0):
         raise TrainConfigError(f"episode_s must be positive, got {cfg.episode_s}")
+    residual_kwargs: dict[str, Any] = {}
+    if cfg.action_penalty != 0.0 or cfg.gate_rad is not None:
+        if cfg.residual == "none":
+            raise TrainConfigError("action_penalty and gate_rad need a residual base")
+        residual_kwargs = {"action_penalty": cfg.action_penalty, "gate_rad": cfg.gate_rad}
+    if cfg.critic_warmup_steps < 0:
+        raise TrainConfigError(f"critic_warmup_steps must be >= 0, got {cfg.critic_warmup_steps}")
+    if cfg.critic_warmup_steps and cfg.algo == "ppo":
+        raise TrainConfigError("critic_warmup_steps needs an off-policy algorithm (sac, td3)")
+    if cfg.init_log_std is not None and (cfg.algo != "sac" or not math.isfinite(cfg.init_log_std)):
+        raise TrainConfigError("init_log_std is a finite number, for sac only")
+    env_extra: dict[str, Any] = {"reward": cfg.reward}
+    if cfg.kernel_weights is not None:
+        env_extra["kernel_weights"] = tuple(cfg.kernel_weights)
+    if cfg.max_path_distance is not None:
+        env_extra["max_path_distance_rad"] = cfg.max_path_distance
     try:
         profile = profile_for_env_id(cfg.env_id)
         control_hz = profile.default_control_hz if cfg.control_hz is None else cfg.control_hz
@@ -198,8 +236,12 @@ def validate(cfg: TrainConfig) -> Resolved:
         for text in (cfg.disturbance, cfg.eval_disturbance or cfg.disturbance):
             check_env_kwargs(
                 cfg.env_id,
-                env_kwargs(control_hz, max_episode_steps, cfg.start, text, cfg.reward_weights),
+                env_kwargs(
+                    control_hz, max_episode_steps, cfg.start, text, cfg.reward_weights, env_extra
+                ),
             )
+        if residual_kwargs:
+            check_safeguards(**residual_kwargs)
     except InvalidConfigError as exc:
         raise TrainConfigError(str(exc)) from None
     for name in ("eval_freq", "checkpoint_freq"):
@@ -239,6 +281,8 @@ def validate(cfg: TrainConfig) -> Resolved:
         int(steps),
         n_envs,
         normalize_kwargs,
+        env_extra,
+        residual_kwargs,
     )
 
 
@@ -248,7 +292,8 @@ def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
         return
     saved = yaml.safe_load(path.read_text()).get("config", {})
     for key in ("algo", "env_id", "residual", "scale_fraction", "start", "episode_s",
-                "reward_weights"):  # fmt: skip
+                "reward_weights", "reward", "kernel_weights", "max_path_distance", "action_penalty",
+                "gate_rad"):  # fmt: skip
         if key in saved and saved[key] != getattr(cfg, key):
             raise TrainConfigError(
                 f"--resume: {key}={getattr(cfg, key)!r} differs from the run's {saved[key]!r}"
@@ -268,6 +313,8 @@ def _env_factory(res: Resolved, disturbance: str | None) -> Callable[[], gym.Env
         c.start,
         disturbance,
         c.reward_weights,
+        res.env_extra,
+        res.residual_kwargs,
     )
 
 
@@ -323,6 +370,48 @@ def zero_init_actor(model: BaseAlgorithm) -> None:
         policy.actor_target.load_state_dict(policy.actor.state_dict())
 
 
+def init_actor_log_std(model: BaseAlgorithm, log_std: float) -> None:
+    """SAC: make the actor's log-std head constant at ``log_std`` (zero weights, bias =
+    ``log_std``): exploration starts with std exp(log_std) before the tanh squashing."""
+    if not isinstance(model, SAC):
+        raise TrainConfigError(f"init_log_std is implemented for SAC, not {type(model).__name__}")
+    head = model.policy.actor.log_std  # type: ignore[union-attr]
+    with torch.no_grad():
+        head.weight.zero_()
+        head.bias.fill_(log_std)
+
+
+class ActorWarmupCallback(BaseCallback):
+    """Freeze the actor (its parameters get no gradient, so no update) until the model
+    has taken ``until_steps`` env steps, while the critic trains on what the frozen actor
+    does. In SB3's SAC and TD3 the critic is updated before the actor and the actor loss
+    reaches the actor only through its parameters, so a frozen actor leaves the critic's
+    and the entropy coefficient's updates as they are."""
+
+    def __init__(self, until_steps: int) -> None:
+        super().__init__()
+        self.until_steps = int(until_steps)
+        self.frozen = False
+
+    def _set(self, frozen: bool) -> None:
+        for p in self.model.actor.parameters():  # type: ignore[attr-defined]
+            p.requires_grad_(not frozen)
+        self.frozen = frozen
+
+    def _on_training_start(self) -> None:
+        if self.num_timesteps < self.until_steps:
+            self._set(True)
+
+    def _on_step(self) -> bool:
+        if self.frozen and self.num_timesteps >= self.until_steps:
+            self._set(False)
+        return True
+
+    def _on_training_end(self) -> None:
+        if self.frozen:
+            self._set(False)
+
+
 def versions() -> dict[str, str]:
     """Python, platform and the versions of the packages a run depends on."""
     out = {"python": sys.version.split()[0], "platform": platform.platform()}
@@ -355,8 +444,11 @@ def _yaml_safe(value: Any) -> Any:
     return repr(value)
 
 
-def write_run_files(res: Resolved, run_dir: Path, argv: Sequence[str] | None) -> None:
-    """config.yml (resolved), command.txt (appended), versions.json."""
+def write_run_files(
+    res: Resolved, run_dir: Path, argv: Sequence[str] | None, command: str | None = None
+) -> None:
+    """config.yml (resolved), command.txt (appended: ``command``, or this script's command
+    line with ``argv``), versions.json."""
     run_dir.mkdir(parents=True, exist_ok=True)
     config = {
         "config": dataclasses.asdict(res.cfg),
@@ -373,14 +465,17 @@ def write_run_files(res: Resolved, run_dir: Path, argv: Sequence[str] | None) ->
     }
     (run_dir / "config.yml").write_text(yaml.safe_dump(_yaml_safe(config), sort_keys=False))
     args = list(sys.argv[1:] if argv is None else argv)
-    line = shlex.join([sys.executable, "-m", "train.train", *args])
+    line = command or shlex.join([sys.executable, "-m", "train.train", *args])
     with (run_dir / "command.txt").open("a") as fh:
         fh.write(line + "\n")
     (run_dir / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
 
 
-def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
-    """Validate ``cfg``, build the envs and the model (or resume), train, save.
+def run(
+    cfg: TrainConfig, argv: Sequence[str] | None = None, command: str | None = None
+) -> TrainResult:
+    """Validate ``cfg``, build the envs and the model (or resume), train, save
+    (``command``: the line ``command.txt`` records, default this script's with ``argv``).
 
     Raises:
         TrainConfigError: a bad config, before any env is built or any file written.
@@ -388,7 +483,7 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
     res = validate(cfg)
     run_dir = Path(cfg.out)
     torch.set_num_threads(cfg.torch_threads)
-    write_run_files(res, run_dir, argv)
+    write_run_files(res, run_dir, argv, command)
     start_steps = 0 if not cfg.resume else latest_checkpoint(run_dir)[0]  # type: ignore[index]
     train_env, eval_env = make_envs(res, run_dir, session=f"from_{start_steps}")
     try:
@@ -412,6 +507,8 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
             )
             if cfg.zero_init_residual:
                 zero_init_actor(model)
+            if cfg.init_log_std is not None:
+                init_actor_log_std(model, cfg.init_log_std)
         # An explicit logger in the run folder: without one SB3 creates /tmp/SB3-<date>.
         formats = (
             ["csv"]
@@ -420,6 +517,9 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
         )
         model.set_logger(configure_logger(str(run_dir / "tb" / f"from_{start_steps}"), formats))
         callbacks: list[BaseCallback] = []
+        if cfg.critic_warmup_steps > 0:
+            learning_starts = int(res.algo_kwargs.get("learning_starts", 100))
+            callbacks.append(ActorWarmupCallback(learning_starts + cfg.critic_warmup_steps))
         if cfg.checkpoint_freq > 0:
             callbacks.append(
                 PruningCheckpointCallback(
@@ -503,6 +603,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--reward-weights", type=float, nargs=3, default=None,
         metavar=("W_PATH", "W_TIME", "W_EFFORT"), help="the env's reward weights",
     )  # fmt: skip
+    p.add_argument("--reward", choices=("quadratic", "kernel"), default=d.reward)
+    p.add_argument(
+        "--kernel-weights", type=float, nargs=3, default=None,
+        metavar=("W_PATH", "W_TIME", "W_EFFORT"), help="weights of --reward kernel",
+    )  # fmt: skip
+    p.add_argument("--max-path-distance", type=float, default=None, help="rad; end an episode")
+    p.add_argument("--action-penalty", type=float, default=d.action_penalty)
+    p.add_argument("--gate-rad", type=float, default=None)
+    p.add_argument("--init-log-std", type=float, default=None)
+    p.add_argument("--critic-warmup-steps", type=int, default=d.critic_warmup_steps)
     p.add_argument("--torch-threads", type=int, default=d.torch_threads)
     p.add_argument("--device", default=d.device)
     p.add_argument("--verbose", type=int, default=d.verbose)

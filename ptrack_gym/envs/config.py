@@ -14,6 +14,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ptrack_gym.disturbances import Disturbance, DisturbanceSpec, build_disturbances
+from ptrack_gym.envs.rewards import (
+    DEFAULT_EFFORT_SCALE,
+    DEFAULT_KERNEL_SCALES_RAD,
+    DEFAULT_KERNEL_WEIGHTS,
+    REWARD_MODES,
+)
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.paths import PATH_FAMILIES, ReferencePath
 from ptrack_gym.robots import RobotProfile, robot_profile
@@ -37,6 +43,19 @@ def _real(value: Any, name: str, *, positive: bool = False) -> float:
     return x
 
 
+def _reals(
+    values: Any, name: str, *, size: int | None = None, positive: bool = False
+) -> tuple[float, ...]:
+    """``values`` as a tuple of floats (each checked by :func:`_real`), of ``size`` entries
+    when given, at least one otherwise; :class:`InvalidConfigError` naming ``name``."""
+    if isinstance(values, (str, bytes)) or not isinstance(values, Sequence):
+        raise InvalidConfigError(f"{name} must be a sequence of numbers, got {values!r}")
+    if (size is not None and len(values) != size) or len(values) == 0:
+        want = f"{size} numbers" if size is not None else "at least one number"
+        raise InvalidConfigError(f"{name} must be {want}, got {values!r}")
+    return tuple(_real(v, f"{name}[{i}]", positive=positive) for i, v in enumerate(values))
+
+
 @dataclass(frozen=True)
 class EnvConfig:
     """The arguments of :class:`~ptrack_gym.envs.tracking.TrackingEnv` (see its docstring),
@@ -52,6 +71,11 @@ class EnvConfig:
     start_offset_rad: float = 0.1
     reward_weights: tuple[float, float, float] = (10.0, 1.0, 0.01)
     unstable_penalty: float = 100.0
+    reward: str = "quadratic"
+    kernel_weights: tuple[float, float, float] = DEFAULT_KERNEL_WEIGHTS
+    kernel_scales_rad: tuple[float, ...] = DEFAULT_KERNEL_SCALES_RAD
+    kernel_effort_scale: float = DEFAULT_EFFORT_SCALE
+    max_path_distance_rad: float | None = None
     disturbance: DisturbanceSpec | Sequence[DisturbanceSpec] | None = None
     horizon_s: float = 10.0
     info_energy: bool = False
@@ -109,6 +133,27 @@ class EnvConfig:
             tuple(_real(w, f"reward_weights[{i}]") for i, w in enumerate(weights)),
         )
         set_(self, "unstable_penalty", _real(self.unstable_penalty, "unstable_penalty"))
+        if self.reward not in REWARD_MODES:
+            raise InvalidConfigError(f"reward must be one of {REWARD_MODES}, got {self.reward!r}")
+        set_(self, "kernel_weights", _reals(self.kernel_weights, "kernel_weights", size=3))
+        if sum(self.kernel_weights) <= 0:
+            raise InvalidConfigError(f"kernel_weights must not all be 0, got {self.kernel_weights}")
+        set_(
+            self,
+            "kernel_scales_rad",
+            _reals(self.kernel_scales_rad, "kernel_scales_rad", positive=True),
+        )
+        set_(
+            self,
+            "kernel_effort_scale",
+            _real(self.kernel_effort_scale, "kernel_effort_scale", positive=True),
+        )
+        if self.max_path_distance_rad is not None:
+            set_(
+                self,
+                "max_path_distance_rad",
+                _real(self.max_path_distance_rad, "max_path_distance_rad", positive=True),
+            )
         set_(self, "horizon_s", _real(self.horizon_s, "horizon_s", positive=True))
         for name in ("info_energy", "gui"):
             if not isinstance(getattr(self, name), bool):

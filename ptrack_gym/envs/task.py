@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from ptrack_gym.envs.rewards import KernelReward
 from ptrack_gym.kernels import task as task_kernels
 from ptrack_gym.paths import PathProjector, ReferencePath
 from ptrack_gym.robots.model import RobotModel
@@ -34,6 +35,8 @@ class TrackingTask:
         reward_weights: (w_path, w_time, w_effort).
         unstable_penalty: the reward of an unstable step is −unstable_penalty.
         info_energy: add ``energy_j`` = H(q, q̇) to the info (one M(q) and U(q) per step).
+        kernel: the bounded reward (``reward="kernel"``) that replaces the quadratic one;
+            None keeps the quadratic reward.
     """
 
     def __init__(
@@ -45,6 +48,7 @@ class TrackingTask:
         reward_weights: tuple[float, float, float],
         unstable_penalty: float,
         info_energy: bool,
+        kernel: KernelReward | None = None,
     ) -> None:
         self.path = path
         self.projector = projector
@@ -54,6 +58,7 @@ class TrackingTask:
         self.reward_weights = reward_weights
         self.unstable_penalty = unstable_penalty
         self.info_energy = info_energy
+        self.kernel = kernel
         ang, vel = np.full(n, 4 * np.pi), np.full(n, max_speed_rad_s)
         high = np.concatenate([ang, vel, ang, vel, 2 * ang, 2 * vel, [1.0, 1.0]])
         self._high32 = high.astype(np.float32)
@@ -126,8 +131,19 @@ class TrackingTask:
         }
         if self.info_energy:
             info["energy_j"] = self.model.kinetic_energy(q, qd) + self.model.potential(q)
+        if self.kernel is not None:
+            return obs, self._kernel_reward(info, q, tau_nm), info
         reward = -self.unstable_penalty if unstable else r_path + r_time + r_effort
         return obs, reward, info
+
+    def _kernel_reward(self, info: dict[str, Any], q: FloatArray, tau_nm: FloatArray) -> float:
+        """The kernel reward (0 when unstable); replaces the info's reward terms."""
+        assert self.kernel is not None
+        terms = self.kernel.terms(
+            info["path_distance"], info["tracking_error"], tau_nm, self.model.gravity(q)
+        )
+        info["reward_path"], info["reward_time"], info["reward_effort"] = terms
+        return 0.0 if info["unstable"] else float(sum(terms))
 
     def sanitize(self, q: FloatArray, qd: FloatArray) -> bool:
         """Whether (q, q̇) is usable (finite q, |q̇| ≤ v_max); if not, made finite in place
@@ -207,6 +223,8 @@ class TrackingTask:
         }
         if self.info_energy:
             info["energy_j"] = self.model.kinetic_energy(q, qd) + self.model.potential(q)
+        if self.kernel is not None:
+            return obs, self._kernel_reward(info, q, tau_nm), info
         if unstable:
             reward = -self.unstable_penalty
         else:

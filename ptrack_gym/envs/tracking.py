@@ -20,6 +20,12 @@ from gymnasium.error import ResetNeeded
 
 from ptrack_gym.disturbances import DisturbanceContext, DisturbanceRunner, DisturbanceSpec
 from ptrack_gym.envs.config import EnvConfig
+from ptrack_gym.envs.rewards import (
+    DEFAULT_EFFORT_SCALE,
+    DEFAULT_KERNEL_SCALES_RAD,
+    DEFAULT_KERNEL_WEIGHTS,
+    KernelReward,
+)
 from ptrack_gym.envs.task import TrackingTask
 from ptrack_gym.errors import InvalidActionError, InvalidConfigError
 from ptrack_gym.kernels.task import clip_action
@@ -62,9 +68,14 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
     v_max = the profile's ``max_joint_speed_rad_s`` (50 rad/s).
 
     ## Reward
-    r = −(w_path · d² + w_time · |q_r − q|² + w_effort · |a|²/n), with d the path
-    distance min_s |q − q_r(s)| (rad). Defaults w = (10, 1, 0.01). The three terms are
-    ``info["reward_path"]``, ``info["reward_time"]`` and ``info["reward_effort"]``.
+    ``reward="quadratic"`` (default): r = −(w_path · d² + w_time · |q_r − q|² + w_effort ·
+    |a|²/n), with d the path distance min_s |q − q_r(s)| (rad). Defaults w = (10, 1, 0.01).
+    ``reward="kernel"``: the bounded r ∈ [0, 1] of :mod:`ptrack_gym.envs.rewards` —
+    multi-scale exponential kernels of d and |q_r − q| (``kernel_scales_rad``, default 0.1,
+    0.01, 0.001 rad) and of the dynamic effort (τ − g(q))/τ_max (``kernel_effort_scale``),
+    weighted by ``kernel_weights`` (default 0.5, 0.4, 0.1); an unstable step earns 0, so
+    ending early never pays. Either way the three terms are ``info["reward_path"]``,
+    ``info["reward_time"]`` and ``info["reward_effort"]``.
 
     ## Starting state
     s₀ is uniform in [0, S) (seeded by ``reset``). ``start="on_path"``: q = q_r(s₀),
@@ -76,15 +87,19 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
     ``terminated=True`` when the simulation is unstable: a non-finite state, or a joint
     speed above v_max (below PyBullet's internal 100 rad/s clamp). Then
     ``info["unstable"]`` is True, the observation is finite (clipped) and the reward is
-    ``-unstable_penalty``. Time limits come from ``TimeLimit`` (``max_episode_steps``
+    ``-unstable_penalty`` (0 with ``reward="kernel"``). With ``max_path_distance_rad``
+    set, ``terminated=True`` also when the true path distance exceeds it
+    (``info["off_path"]``, always present, says so); the step's reward is the usual one.
+    Time limits come from ``TimeLimit`` (``max_episode_steps``
     at registration); the env itself never truncates. Stepping before the first
     ``reset`` raises ``gymnasium.error.ResetNeeded``.
 
     ## Info
     ``t_s`` (s), ``s_ref`` (s), ``path_distance`` (rad), ``path_s`` (s, the nearest
     path parameter), ``tracking_error`` (rad, |q_r(s₀+t) − q|), ``tau_nm`` (commanded
-    torque after clipping), the reward terms, ``disturbance_torque_nm`` (joint-space
-    disturbance torque of the last physics sub-step, pushes as JᵀF),
+    torque after clipping), the reward terms, ``off_path`` (after a step),
+    ``disturbance_torque_nm`` (joint-space disturbance torque of the last physics
+    sub-step, pushes as JᵀF),
     ``disturbance_work_j`` (∫ q̇ᵀτ_d since reset, J), ``unstable``; with
     ``info_energy=True`` also ``energy_j`` (H(q, q̇) by the nominal model, J). Path
     distance, errors and energy use the true state; the observation holds the *measured*
@@ -95,6 +110,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
     "random", or a :class:`~ptrack_gym.paths.ReferencePath`); ``path_seed`` (for
     "random"); ``physics_hz`` (1000), ``control_hz`` (1000); ``start``,
     ``start_noise_rad``, ``start_offset_rad``; ``reward_weights``; ``unstable_penalty``;
+    ``reward``, ``kernel_weights``, ``kernel_scales_rad``, ``kernel_effort_scale``;
+    ``max_path_distance_rad`` (None: no off-path termination);
     ``disturbance`` (see :mod:`ptrack_gym.disturbances`: a preset name,
     ``(preset, level)``, specs or a list); ``horizon_s`` (the nominal episode length the
     disturbances draw onsets and energy budgets for, 10 s); ``info_energy`` (False);
@@ -119,6 +136,11 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         start_offset_rad: float = 0.1,
         reward_weights: tuple[float, float, float] = (10.0, 1.0, 0.01),
         unstable_penalty: float = 100.0,
+        reward: str = "quadratic",
+        kernel_weights: tuple[float, float, float] = DEFAULT_KERNEL_WEIGHTS,
+        kernel_scales_rad: tuple[float, ...] = DEFAULT_KERNEL_SCALES_RAD,
+        kernel_effort_scale: float = DEFAULT_EFFORT_SCALE,
+        max_path_distance_rad: float | None = None,
         disturbance: DisturbanceSpec | Sequence[DisturbanceSpec] | None = None,
         horizon_s: float = 10.0,
         info_energy: bool = False,
@@ -129,8 +151,10 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             robot=robot, path=path, path_seed=path_seed, physics_hz=physics_hz,
             control_hz=control_hz, start=start, start_noise_rad=start_noise_rad,
             start_offset_rad=start_offset_rad, reward_weights=reward_weights,
-            unstable_penalty=unstable_penalty, disturbance=disturbance, horizon_s=horizon_s,
-            info_energy=info_energy, render_mode=render_mode, gui=gui,
+            unstable_penalty=unstable_penalty, reward=reward, kernel_weights=kernel_weights,
+            kernel_scales_rad=kernel_scales_rad, kernel_effort_scale=kernel_effort_scale,
+            max_path_distance_rad=max_path_distance_rad, disturbance=disturbance,
+            horizon_s=horizon_s, info_energy=info_energy, render_mode=render_mode, gui=gui,
         )  # fmt: skip
         self.robot_profile = profile = config.profile
         self.render_mode = config.render_mode
@@ -152,6 +176,16 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             config.reward_weights,
             config.unstable_penalty,
             config.info_energy,
+            kernel=(
+                KernelReward(
+                    config.kernel_weights,
+                    config.kernel_scales_rad,
+                    config.kernel_effort_scale,
+                    self.torque_limits_nm,
+                )
+                if config.reward == "kernel"
+                else None
+            ),
         )
         self.runner = DisturbanceRunner(config.disturbances, self.n)
         self.sim = BulletSim(timestep_s=self.physics_dt, gui=config.gui)
@@ -242,7 +276,10 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             self.runner.work_j, blown_up,
         )  # fmt: skip
         unstable = info["unstable"]  # a non-finite state or a joint faster than v_max
-        return obs, reward, unstable, False, info
+        max_d = self.config.max_path_distance_rad
+        off_path = max_d is not None and info["path_distance"] > max_d
+        info["off_path"] = off_path
+        return obs, reward, unstable or off_path, False, info
 
     def _validate_action(self, action: np.ndarray) -> tuple[FloatArray, FloatArray]:
         """(clip(a, −1, 1), the torque it commands (N·m)), or InvalidActionError."""

@@ -1,0 +1,134 @@
+"""Train every run of a multi-seed RL study: (group × seed) ``train.train`` runs, one
+process each, ``--workers`` at a time, resumable.
+
+The study is a YAML file (``train/configs/rl_study_*.yml``)::
+
+    seeds: [0, 1, 2, 3, 4]
+    common:                     # TrainConfig fields of every run (train.train.TrainConfig)
+      env_id: ptrack_gym/TwoLinkTrack-v0
+      steps: 60000              # the sample budget of every run (equal budgets)
+      overrides: {policy_kwargs: "dict(net_arch=[64, 64])"}
+    groups:                     # per group, fields over ``common`` (overrides merged key by key)
+      pure: {residual: none}
+      residual-passivity: {residual: passivity, zero_init_residual: true}
+
+Run ``<out>/<group>_s<seed>`` gets seed ``seed``. A run whose final checkpoint holds the
+budget is skipped; an interrupted one (a checkpoint short of the budget) is continued with
+``--resume`` for the remaining steps; any other is started. A run that fails is reported
+at the end and does not stop the others; the exit status is then 1.
+
+Usage::
+
+    python -m train.rl_campaign --config train/configs/rl_study_two_link.yml \\
+        --out runs/rl_study_two_link --workers 2
+
+Then ``python -m train.rl_study --runs <out> ...`` evaluates the checkpoints.
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import shlex
+import sys
+import traceback
+from collections.abc import Sequence
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from train.checkpoints import latest_checkpoint
+from train.hyperparameters import TrainConfigError
+from train.train import TrainConfig, validate
+
+_CONFIG_KEYS = {"seeds", "common", "groups"}
+
+
+def load_campaign(path: Path, out: Path) -> list[TrainConfig]:
+    """The study's runs as validated-in-form :class:`TrainConfig` s (fresh, no resume).
+
+    Raises:
+        TrainConfigError: unknown top-level keys, an unknown TrainConfig field, no seeds
+            or groups.
+    """
+    raw = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(raw, dict):
+        raise TrainConfigError(f"{path}: expected a mapping")
+    unknown = set(raw) - _CONFIG_KEYS
+    if unknown:
+        raise TrainConfigError(f"{path}: unknown keys {sorted(unknown)}; known: {_CONFIG_KEYS}")
+    seeds = raw.get("seeds") or []
+    groups = raw.get("groups") or {}
+    if not seeds or not groups:
+        raise TrainConfigError(f"{path}: needs 'seeds' and 'groups'")
+    common = dict(raw.get("common") or {})
+    known = {f.name for f in fields(TrainConfig)} - {"out", "seed", "resume"}
+    runs = []
+    for group, spec in groups.items():
+        merged = {**common, **(spec or {})}
+        merged["overrides"] = {
+            **(common.get("overrides") or {}),
+            **((spec or {}).get("overrides") or {}),
+        }
+        bad = set(merged) - known
+        if bad:
+            raise TrainConfigError(f"{path}: group {group}: unknown fields {sorted(bad)}")
+        for seed in seeds:
+            runs.append(
+                TrainConfig(out=str(out / f"{group}_s{int(seed)}"), seed=int(seed), **merged)
+            )
+    return runs
+
+
+def plan(cfg: TrainConfig) -> TrainConfig | None:
+    """What to do for one run: None if its budget is trained, else the config to run
+    (``resume=True`` with the remaining steps when it was interrupted)."""
+    run_dir = Path(cfg.out)
+    budget = validate(TrainConfig(**{**cfg.__dict__, "out": "/nonexistent"})).steps
+    found = latest_checkpoint(run_dir)
+    if found is None:
+        if (run_dir / "config.yml").exists():  # started, no checkpoint yet: start over
+            (run_dir / "config.yml").unlink()
+        return TrainConfig(**{**cfg.__dict__, "steps": budget})
+    done = found[0]
+    if done >= budget:
+        return None
+    return TrainConfig(**{**cfg.__dict__, "steps": budget - done, "resume": True})
+
+
+def _train_one(job: tuple[TrainConfig, str]) -> tuple[str, str | None]:
+    from train.train import run
+
+    cfg, command = job
+    try:
+        run(cfg, command=f"{command}  # run {cfg.out}, resume={cfg.resume}, steps={cfg.steps}")
+    except Exception:  # reported, never silently dropped
+        return cfg.out, traceback.format_exc()
+    return cfg.out, None
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--config", type=Path, required=True)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--workers", type=int, default=2)
+    args = p.parse_args(argv)
+    command = shlex.join([sys.executable, "-m", "train.rl_campaign", *(argv or sys.argv[1:])])
+    todo: list[Any] = [(c, command) for c in map(plan, load_campaign(args.config, args.out)) if c]
+    print(f"{len(todo)} runs to train into {args.out}", flush=True)
+    failed = []
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(max(1, args.workers), maxtasksperchild=1) as pool:
+        for out, error in pool.imap_unordered(_train_one, todo):
+            print(f"{'FAILED' if error else 'done'}: {out}", flush=True)
+            if error:
+                failed.append((out, error))
+    for out, error in failed:
+        print(f"--- {out}\n{error}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
