@@ -2,9 +2,22 @@
 
 ``from agents import make_controller, ControllerPolicy`` is all a user needs to run a
 controller on an env; :data:`agents.registry.CONTROLLERS` lists the controllers.
+``import agents`` also registers the residual ids
+``ptrack_gym/<Robot>Track-Residual-<Base>-v0`` (:data:`RESIDUAL_ENV_IDS`), e.g.
+``gym.make("ptrack_gym/TwoLinkTrack-Residual-Passivity-v0")``.
 """
 
+import ptrack_gym  # noqa: F401  (registers the plain ids the residual ids build on)
 from agents.policy import ControllerPolicy
 from agents.registry import CONTROLLER_NAMES, CONTROLLERS, make_controller
+from agents.residual import register_residual_envs
 
-__all__ = ["CONTROLLERS", "CONTROLLER_NAMES", "ControllerPolicy", "make_controller"]
+RESIDUAL_ENV_IDS: list[str] = register_residual_envs()
+
+__all__ = [
+    "CONTROLLERS",
+    "CONTROLLER_NAMES",
+    "RESIDUAL_ENV_IDS",
+    "ControllerPolicy",
+    "make_controller",
+]

@@ -181,6 +181,7 @@ class ResidualWrapper(
         gate_rad: float | None = None,
     ) -> None:
         self._controller_name = controller if isinstance(controller, str) else None
+        self._registered = False  # set by residual_env: the spec is the registered one
         if self._controller_name is not None:
             gym.utils.RecordConstructorArgs.__init__(
                 self,
@@ -230,7 +231,10 @@ class ResidualWrapper(
     @property
     def spec(self) -> EnvSpec | None:
         """The env's spec with this wrapper appended, when the controller was given by
-        name; None when it was given as an object (it cannot be rebuilt)."""
+        name; None when it was given as an object (it cannot be rebuilt). Built by a
+        registered residual id (:func:`residual_env`), the registered spec itself."""
+        if self._registered:
+            return self.env.spec
         if self._controller_name is None:
             return None
         return super().spec
@@ -337,3 +341,72 @@ def make_residual_env(
     except BaseException:
         env.close()
         raise
+
+
+def _camel(name: str) -> str:
+    return "".join(part.capitalize() for part in name.split("_"))
+
+
+def residual_env_id(env_id: str, base: str) -> str:
+    """``ptrack_gym/<Robot>Track-v0`` + ``computed_torque`` →
+    ``ptrack_gym/<Robot>Track-Residual-ComputedTorque-v0``."""
+    stem = env_id.removesuffix("-v0")
+    return f"{stem}-Residual-{_camel(base)}-v0"
+
+
+def residual_env(
+    robot: str,
+    base: str,
+    scale_fraction: float = DEFAULT_SCALE_FRACTION,
+    include_controller_state: bool = True,
+    action_penalty: float = 0.0,
+    gate_rad: float | None = None,
+    **env_kwargs: Any,
+) -> ResidualWrapper:
+    """The entry point of the registered residual ids (:func:`register_residual_envs`):
+    a ``TrackingEnv(robot=robot, **env_kwargs)`` in a :class:`ResidualWrapper` around the
+    default-gain controller ``base``; ``gym.make`` adds the time limit and its checkers.
+
+    Raises:
+        InvalidConfigError: an unknown base or a bad scale fraction (unknown env
+            arguments raise ``TypeError``, bad values ``ValueError``, as ``TrackingEnv``).
+    """
+    from ptrack_gym.envs.tracking import TrackingEnv
+
+    if base not in CONTROLLER_NAMES:
+        raise InvalidConfigError(f"unknown base controller {base!r}; known: {CONTROLLER_NAMES}")
+    if not (math.isfinite(scale_fraction) and scale_fraction >= 0.0):
+        raise InvalidConfigError(f"scale_fraction must be finite and >= 0, got {scale_fraction}")
+    env = TrackingEnv(robot=robot, **env_kwargs)
+    try:
+        scale_nm = tuple(float(x) for x in scale_fraction * env.torque_limits_nm)
+        wrapper = ResidualWrapper(
+            env, base, scale_nm, include_controller_state, action_penalty, gate_rad
+        )
+    except BaseException:
+        env.close()
+        raise
+    wrapper._registered = True
+    return wrapper
+
+
+def register_residual_envs() -> list[str]:
+    """Register ``ptrack_gym/<Robot>Track-Residual-<Base>-v0`` for every robot and base
+    controller (string entry point :func:`residual_env`, the plain id's time limit) and
+    return the ids. ``import agents`` calls it; ``ptrack_gym`` never imports ``agents``."""
+    from ptrack_gym.robots import ROBOTS
+
+    ids = []
+    for profile in ROBOTS.values():
+        plain = gym.spec(profile.env_id)
+        for base in CONTROLLER_NAMES:
+            env_id = residual_env_id(profile.env_id, base)
+            if env_id not in gym.registry:
+                gym.register(
+                    id=env_id,
+                    entry_point="agents.residual:residual_env",
+                    kwargs={"robot": profile.name, "base": base},
+                    max_episode_steps=plain.max_episode_steps,
+                )
+            ids.append(env_id)
+    return ids
