@@ -1,0 +1,103 @@
+"""``python -m train.rl_campaign``: the study's runs from its YAML, what is skipped,
+resumed or started, and a tiny campaign end to end (then interrupted and completed)."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("stable_baselines3", reason="the optional 'train' extra is not installed")
+
+from pathlib import Path
+
+import yaml
+
+from train.checkpoints import latest_checkpoint
+from train.hyperparameters import TrainConfigError
+from train.rl_campaign import load_campaign, main, plan
+
+ROOT = Path(__file__).resolve().parents[1]
+
+TINY = {
+    "seeds": [0, 1],
+    "common": {
+        "env_id": "ptrack_gym/TwoLinkTrack-v0",
+        "steps": 120,
+        "episode_s": 0.2,
+        "reward": "kernel",
+        "checkpoint_freq": 60,
+        "eval_freq": 0,
+        "overrides": {
+            "learning_starts": 20,
+            "batch_size": 16,
+            "buffer_size": 500,
+            "policy_kwargs": "dict(net_arch=[16])",
+        },
+    },
+    "groups": {
+        "pure": {"residual": "none"},
+        "residual-passivity": {
+            "residual": "passivity",
+            "zero_init_residual": True,
+            "action_penalty": 0.05,
+            "overrides": {"learning_starts": 0},
+        },
+    },
+}
+
+
+def write(tmp_path: Path, data: dict) -> Path:
+    path = tmp_path / "study.yml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_the_packaged_study_loads_with_equal_budgets() -> None:
+    runs = load_campaign(ROOT / "train/configs/rl_study_two_link.yml", Path("/nonexistent"))
+    assert len(runs) == 15 and len({r.steps for r in runs}) == 1
+    assert {r.seed for r in runs} == {0, 1, 2, 3, 4}
+    assert {r.residual for r in runs} == {"none", "passivity", "computed_torque"}
+    residual = next(r for r in runs if r.residual == "passivity")
+    assert residual.overrides["policy_kwargs"] == "dict(net_arch=[64, 64])"  # common kept
+    assert residual.overrides["learning_starts"] == 0  # group override merged over it
+
+
+def test_groups_merge_overrides_key_by_key(tmp_path: Path) -> None:
+    runs = load_campaign(write(tmp_path, TINY), tmp_path / "out")
+    assert [Path(r.out).name for r in runs] == [
+        "pure_s0", "pure_s1", "residual-passivity_s0", "residual-passivity_s1",
+    ]  # fmt: skip
+    assert runs[2].overrides == {**TINY["common"]["overrides"], "learning_starts": 0}
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {**TINY, "extra": 1},
+        {**TINY, "seeds": []},
+        {**TINY, "groups": {}},
+        {**TINY, "groups": {"pure": {"no_such_field": 1}}},
+        {**TINY, "groups": {"pure": {"out": "x"}}},
+    ],
+)
+def test_bad_study_files_raise(tmp_path: Path, bad: dict) -> None:
+    with pytest.raises(TrainConfigError):
+        load_campaign(write(tmp_path, bad), tmp_path / "out")
+
+
+def test_campaign_trains_skips_and_resumes(tmp_path: Path) -> None:
+    study, out = write(tmp_path, TINY), tmp_path / "out"
+    assert main(["--config", str(study), "--out", str(out), "--workers", "2"]) == 0
+    runs = load_campaign(study, out)
+    for r in runs:
+        assert latest_checkpoint(Path(r.out))[0] == 120
+        assert plan(r) is None  # trained: skipped next time
+    # interrupt one run: drop its final checkpoint; the campaign continues it from 60
+    victim = Path(runs[3].out) / "checkpoints"
+    for f in victim.glob("*_120_steps*"):
+        f.unlink()
+    again = plan(runs[3])
+    assert again is not None and again.resume and again.steps == 60
+    assert main(["--config", str(study), "--out", str(out), "--workers", "1"]) == 0
+    assert latest_checkpoint(Path(runs[3].out))[0] == 120
+    lines = (Path(runs[3].out) / "command.txt").read_text().splitlines()
+    assert len(lines) == 2 and "train.rl_campaign" in lines[1] and "resume=True" in lines[1]
