@@ -49,12 +49,19 @@ def test_study_writes_curves_figure_and_final_table(study: Path, tmp_path: Path)
     assert set(curves["group"]) == {"pure", "residual-passivity"}
     assert curves["path_dist_rms"].notna().all()
     episodes = pd.read_csv(out / "episodes.csv")
-    # base controller and computed torque alone + 6 checkpoints, 2 disturbances, 2 episodes
-    assert len(episodes) == (2 + 6) * 2 * 2
+    # passivity, computed torque, PD + g alone + 6 checkpoints, 2 disturbances, 2 episodes
+    assert len(episodes) == (3 + 6) * 2 * 2
+    final = pd.read_csv(out / "final" / "episodes.csv")
+    # the 3 controllers alone + 3 final checkpoints, 5 presets at level 1, 2 episodes
+    assert len(final) == (3 + 3) * 5 * 2
+    assert set(final["disturbance"]) == {"none", "impulse", "periodic", "payload", "noise"}
     assert (out / "learning_curves.png").stat().st_size > 10_000
     table = (out / "final.md").read_text()
-    assert "pure SAC @ 200 steps" in table and "residual-passivity SAC @ 200 steps" in table
+    assert "pure SAC @ 200 steps (vs pd_gravity)" in table
+    assert "residual-passivity SAC @ 200 steps (vs passivity)" in table
     assert "passivity alone" in table and "computed_torque alone" in table
+    assert "## Samples to reach the reference" in table and "| pure | pd_gravity" in table
+    assert "IQM" in table and (out / "aggregate.png").exists()
     # the curve value at the last checkpoint is the final table's per-seed figure
     last = curves[(curves["group"] == "residual-passivity") & (curves["steps"] == 200)]
     value = last[last["disturbance"] == "impulse"]["path_dist_rms"].item()
@@ -101,15 +108,25 @@ def test_a_normalized_run_without_its_statistics_is_refused(study: Path, tmp_pat
         run_episode(Task(f"sb3:{run}", "none", 0.0, 0, 0), settings)
 
 
-def test_residual_runs_on_different_bases_are_refused(study: Path, tmp_path: Path) -> None:
-    """Each group's Δ is against its base: a study has one base, else it is refused."""
+def test_groups_on_different_bases_each_meet_their_own_base(study: Path, tmp_path: Path) -> None:
+    """A residual over computed torque is its own group, compared with computed torque; a
+    gated residual is a group of its own too; the sweeps hold every base alone."""
     root = tmp_path / "bases"
     shutil.copytree(study / "residual_s0", root / "a")
-    shutil.copytree(study / "residual_s0", root / "b")
-    cfg_file = root / "b" / "config.yml"
-    cfg = yaml.safe_load(cfg_file.read_text())
-    cfg["config"]["residual"] = "computed_torque"
-    cfg_file.write_text(yaml.safe_dump(cfg))
-    with pytest.raises(InvalidConfigError, match="different residual bases"):
-        sweep_config(discover(root), episodes=1, out=tmp_path / "out", workers=1)
-    assert not (tmp_path / "out").exists()
+    for name, change in (("b", {"residual": "computed_torque"}), ("c", {"gate_rad": 0.01})):
+        shutil.copytree(study / "residual_s0", root / name)
+        cfg_file = root / name / "config.yml"
+        cfg = yaml.safe_load(cfg_file.read_text())
+        cfg["config"].update(change)
+        cfg_file.write_text(yaml.safe_dump(cfg))
+    runs = discover(root)
+    assert sorted(r.group for r in runs) == [
+        "residual-computed_torque", "residual-passivity", "residual-passivity-gated",
+    ]  # fmt: skip
+    curves = sweep_config(runs, 2, tmp_path / "out", 1)
+    final = sweep_config(runs, 2, tmp_path / "out" / "final", 1, ["none", "payload"])
+    for cfg in (curves, final):
+        assert cfg.controllers[:3] == ["computed_torque", "passivity", "pd_gravity"]
+    assert len(curves.controllers) == 3 + 3 * 2  # every checkpoint (100, 200) of 3 runs
+    assert final.controllers[3:] == [f"sb3:{r.path}@200" for r in runs]
+    assert (final.disturbances, final.levels) == (["none", "payload"], [1.0])

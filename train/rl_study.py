@@ -1,28 +1,33 @@
 """Learning curves and final figures of a multi-seed RL study, from its checkpoints.
 
-A *study* is a folder of ``python -m train.train`` runs that share env, training
-disturbance, control rate, episode length and start mode, and differ in seed and in
-their residual base (``none`` = pure RL). This script evaluates **every checkpoint of
-every run** and the runs' base controller and computed torque alone, all through one
+A *study* is a folder of ``python -m train.train`` runs (``python -m train.rl_campaign``
+trains one) that share env, algorithm, training disturbance, control rate, episode length
+and start mode, and differ in seed and in their *group*: pure RL, or a residual on a base
+controller (``residual-<base>``, ``-gated`` with a path-error gate), each group with its
+own reward and safeguards. This script evaluates **every checkpoint of every run** and the
+base controllers alone (every group's base, computed torque and PD + gravity) through one
 ``train.evaluate`` sweep (``sb3:<run>@<steps>`` entries), so every policy meets the same
 start states and the same disturbance schedules, under the training disturbance and
-undisturbed. It then writes:
+undisturbed; then the **final checkpoints** under every preset of ``--presets`` at level 1
+in a second sweep (``final/``). It then writes:
 
 * ``learning_curves.png`` — path-distance RMS (rad, log scale) against training steps:
   one thin line per run, the median over seeds thick, per group; the base controller
   and computed torque as horizontal lines; one panel per disturbance; and the training
   run's own ``EvalCallback`` return in a last panel;
-* ``final.md`` (also printed) — per group, at the largest step count every run has a
-  checkpoint of (one budget for all), the path-distance RMS per seed and pooled, and the
-  paired difference to the base controller with a bootstrap 95 % CI over the pooled
-  (run, episode) pairs;
+* ``final.md`` (also printed) — per preset and group, at the largest step count every run
+  has a checkpoint of (one budget for all), the path-distance RMS per seed and pooled, and
+  the paired difference to the group's base alone (pure RL: to PD + gravity) with a
+  bootstrap 95 % CI over the pooled (run, episode) pairs; the samples each run needed to
+  reach its base's path distance under the training disturbance; and rliable's aggregate
+  (IQM, stratified bootstrap over training seeds) over the presets;
 * the sweep's own ``episodes.csv``, ``summary.csv`` and figures.
 
 Usage::
 
     python -m train.rl_study --runs runs/study --out results/rl_study --episodes 10
 
-``--resume`` continues an interrupted evaluation (the sweep's ``episodes.csv``).
+``--resume`` continues an interrupted evaluation (the sweeps' ``episodes.csv``).
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ import yaml
 
 from ptrack_gym.errors import InvalidConfigError
 from train.evaluate import EvalConfig
+from train.report import aggregate
 from train.results import bootstrap_ci, load_frame
 from train.sweep import run_sweep
 
@@ -46,14 +52,20 @@ from train.sweep import run_sweep
 _CKPT = re.compile(r"rl_model_(\d+)_steps\.zip$")
 
 #: The run-config keys every run of a study must share.
-SHARED_KEYS = (
-    "algo", "env_id", "disturbance", "episode_s", "start", "reward_weights",
-    "hyperparams", "overrides",
+SHARED_KEYS = ("algo", "env_id", "disturbance", "episode_s", "start")
+
+#: The keys the runs of one group must share too (groups may differ in them: each has its
+#: own reward, hyperparameters and safeguards).
+GROUP_KEYS = (
+    "reward_weights", "reward", "kernel_weights", "max_path_distance", "hyperparams",
+    "overrides", "scale_fraction", "zero_init_residual", "action_penalty", "gate_rad",
+    "init_log_std", "critic_warmup_steps",
 )  # fmt: skip
 
-#: The keys the runs of one group must share too (they mean nothing for pure RL, so a
-#: pure and a residual group may differ in them).
-GROUP_KEYS = ("scale_fraction", "zero_init_residual")
+#: The presets the final checkpoints are evaluated under (level 1), by default.
+FINAL_PRESETS = ("none", "impulse", "periodic", "payload", "noise")
+#: What pure RL is compared with (the issue's target: within 2x of PD + gravity).
+PURE_REFERENCE = "pd_gravity"
 
 
 @dataclass(frozen=True)
@@ -86,10 +98,13 @@ def discover(root: Path) -> list[Run]:
             if (m := _CKPT.search(f.name))
         )
         base = str(c["residual"])
+        group = "pure" if base == "none" else f"residual-{base}"
+        if base != "none" and c.get("gate_rad") is not None:
+            group += "-gated"
         runs.append(
             Run(
                 path=run_dir,
-                group="pure" if base == "none" else f"residual-{base}",
+                group=group,
                 base=base,
                 seed=int(c["seed"]),
                 control_hz=float(cfg["derived"]["control_hz"]),
@@ -118,28 +133,45 @@ def discover(root: Path) -> list[Run]:
     return runs
 
 
-def sweep_config(runs: Sequence[Run], episodes: int, out: Path, workers: int) -> EvalConfig:
-    """The evaluation sweep: base controllers + every checkpoint of every run, under
-    the training disturbance and undisturbed, ``episodes`` paired episodes each."""
+def reference_of(run: Run) -> str:
+    """The controller a run is compared with: its base, or PD + gravity for pure RL."""
+    return PURE_REFERENCE if run.base == "none" else run.base
+
+
+def sweep_config(
+    runs: Sequence[Run],
+    episodes: int,
+    out: Path,
+    workers: int,
+    presets: Sequence[str] | None = None,
+) -> EvalConfig:
+    """An evaluation sweep: the base controllers alone + the runs' checkpoints,
+    ``episodes`` paired episodes each. ``presets=None``: every checkpoint, under the
+    training disturbance and undisturbed (the learning curves); else the final checkpoints
+    (:func:`final_steps`) under ``presets`` at level 1."""
     first = runs[0].config
     preset, _, level = str(first["disturbance"]).partition(":")
     if preset in ("", "none"):
         raise InvalidConfigError("the study's runs were trained without a disturbance")
-    bases = sorted({r.base for r in runs if r.base != "none"}) or ["passivity"]
-    if len(bases) > 1:
-        raise InvalidConfigError(f"the runs have different residual bases {bases}: one per study")
-    baselines = list(dict.fromkeys([*bases, "computed_torque"]))
-    entries = [f"sb3:{r.path}@{s}" for r in runs for s in r.checkpoints]
+    bases = sorted({r.base for r in runs if r.base != "none"})
+    baselines = list(dict.fromkeys([*bases, "computed_torque", PURE_REFERENCE]))
+    if presets is None:
+        entries = [f"sb3:{r.path}@{s}" for r in runs for s in r.checkpoints]
+        disturbances, levels = ["none", preset], [float(level) if level else 1.0]
+    else:
+        steps = final_steps(runs)
+        entries = [f"sb3:{r.path}@{steps}" for r in runs]
+        disturbances, levels = list(presets), [1.0]
     return EvalConfig(
         env_id=str(first["env_id"]),
         controllers=baselines + entries,
-        disturbances=["none", preset],
-        levels=[float(level) if level else 1.0],
+        disturbances=disturbances,
+        levels=levels,
         seeds=episodes,
         episode_s=float(first["episode_s"]),  # type: ignore[arg-type]
         control_hz=runs[0].control_hz,
         start=str(first["start"]),
-        reference=bases[0],
+        reference=baselines[0],
         workers=workers,
         out=str(out),
         plots=False,
@@ -242,44 +274,99 @@ def final_steps(runs: Sequence[Run]) -> int:
     return max(common)
 
 
-def final_table(df: pd.DataFrame, runs: Sequence[Run], reference: str, resamples: int) -> str:
-    """Markdown table of the final checkpoints against the base controllers alone. Every
-    run is taken at the same budget: the largest step count all runs have a checkpoint
-    of."""
+def final_table(df: pd.DataFrame, runs: Sequence[Run], resamples: int) -> str:
+    """Markdown table of the final checkpoints against the controllers alone, per
+    disturbance (rows of ``df``'s disturbances, in order). Every run is taken at the same
+    budget (:func:`final_steps`); Δ is the paired difference to the group's reference
+    (:func:`reference_of`) with a bootstrap 95 % CI over the pooled (run, episode) pairs
+    (it does not carry the seed-to-seed variance: read it next to the per-seed column),
+    and ×ref the ratio of the pooled means."""
     steps = final_steps(runs)
+    algo = str(runs[0].config["algo"]).upper()
     lines = [
         "| disturbance | policy | path-dist RMS per seed (rad) | pooled mean (rad) | "
-        f"Δ vs {reference} alone, 95% CI | time-indexed RMSE (rad) | failures |",
-        "| --- | --- | --- | ---: | --- | ---: | ---: |",
+        "Δ vs reference alone, 95% CI | ×ref | time-indexed RMSE (rad) | failures |",
+        "| --- | --- | --- | ---: | --- | ---: | ---: | ---: |",
     ]
     key = ["disturbance", "level", "seed", "episode"]
     for dist, gd in df.groupby("disturbance", sort=False):
-        ref = gd[gd["controller"] == reference].set_index(key)["path_dist_rms"]
-        baselines = [c for c in gd["controller"].unique() if not c.startswith("sb3:")]
-        for ctrl in baselines:
-            g = gd[gd["controller"] == ctrl]
+        alone = {
+            c: g.set_index(key)
+            for c, g in gd.groupby("controller")
+            if not str(c).startswith("sb3:")
+        }
+        for ctrl, g in alone.items():
             lines.append(
-                f"| {dist} | {ctrl} alone | — | {g['path_dist_rms'].mean():.3e} | — | "
+                f"| {dist} | {ctrl} alone | — | {g['path_dist_rms'].mean():.3e} | — | — | "
                 f"{g['time_err_rms'].mean():.2e} | {int(g['failed'].sum())} |"
             )
         for group in sorted({r.group for r in runs}):
-            per_seed, diffs, time_err, fails = [], [], [], 0
-            for r in sorted((r for r in runs if r.group == group), key=lambda r: r.seed):
+            members = sorted((r for r in runs if r.group == group), key=lambda r: r.seed)
+            ref_name = reference_of(members[0])
+            ref = alone[ref_name]["path_dist_rms"]
+            per_seed, diffs, time_err, fails, mine = [], [], [], 0, []
+            for r in members:
                 g = gd[gd["controller"] == f"sb3:{r.path}@{steps}"].set_index(key)
                 per_seed.append(float(g["path_dist_rms"].mean()))
                 common = g.index.intersection(ref.index)
                 diffs.extend((g.loc[common, "path_dist_rms"] - ref.loc[common]).tolist())
+                mine.extend(g["path_dist_rms"].tolist())
                 fails += int(g["failed"].sum())
                 time_err.extend(g["time_err_rms"].tolist())
             d = np.asarray(diffs)
             lo, hi = bootstrap_ci(d, np.mean, resamples, 0)
             lines.append(
-                f"| {dist} | {group} {str(runs[0].config['algo']).upper()} @ {steps} steps | "
+                f"| {dist} | {group} {algo} @ {steps} steps (vs {ref_name}) | "
                 + ", ".join(f"{v:.2e}" for v in per_seed)
-                + f" | {np.mean(per_seed):.3e} | {np.mean(d):+.2e} [{lo:+.2e}, {hi:+.2e}]"
-                + f" | {np.mean(time_err):.2e} | {fails} |"
+                + f" | {np.mean(mine):.3e} | {np.mean(d):+.2e} [{lo:+.2e}, {hi:+.2e}]"
+                + f" | {np.mean(mine) / ref.mean():.2f} | {np.mean(time_err):.2e} | "
+                + f"{fails}/{len(mine)} |"
             )
     return "\n".join(lines)
+
+
+def samples_to_reach(curves: pd.DataFrame, baselines: dict, runs: Sequence[Run], dist: str) -> str:
+    """Markdown table: per group, the training steps each run needed until a checkpoint's
+    mean path distance under ``dist`` was at most its reference's alone (None: not within
+    its checkpoints); the median over the runs that reached it."""
+    lines = [
+        f"| group | reference | steps to reach the reference's path distance ({dist}), "
+        "per seed | reached | median (reached) |",
+        "| --- | --- | --- | ---: | ---: |",
+    ]
+    for group in sorted({r.group for r in runs}):
+        members = sorted((r for r in runs if r.group == group), key=lambda r: r.seed)
+        ref_name = reference_of(members[0])
+        target = float(baselines[dist][ref_name])
+        reached = []
+        for r in members:
+            c = curves[(curves["group"] == group) & (curves["seed"] == r.seed)]
+            c = c[(c["disturbance"] == dist) & (c["path_dist_rms"] <= target)]
+            reached.append(int(c["steps"].min()) if len(c) else None)
+        got = [x for x in reached if x is not None]
+        per_seed = ", ".join("—" if x is None else str(x) for x in reached)
+        median = f"{np.median(got):.0f}" if got else "—"
+        lines.append(
+            f"| {group} | {ref_name} ({target:.2e} rad) | {per_seed} "
+            f"| {len(got)}/{len(reached)} | {median} |"
+        )
+    return "\n".join(lines)
+
+
+def aggregate_frame(df: pd.DataFrame, runs: Sequence[Run]) -> pd.DataFrame:
+    """The final sweep's rows renamed for rliable: a group's "runs" are (training seed,
+    test episode) pairs, stratified by training seed; a controller alone's are its test
+    episodes."""
+    steps = final_steps(runs)
+    by_entry = {f"sb3:{r.path}@{steps}": r for r in runs}
+    out = df.copy()
+    is_run = out["controller"].isin(list(by_entry))
+    run_of = out.loc[is_run, "controller"].map(by_entry)
+    out.loc[is_run, "episode"] = out.loc[is_run, "seed"] * 10_000 + out.loc[is_run, "episode"]
+    out.loc[is_run, "seed"] = [r.seed for r in run_of]
+    out.loc[is_run, "controller"] = [r.group for r in run_of]
+    out.loc[~is_run, "controller"] = out.loc[~is_run, "controller"] + " alone"
+    return out
 
 
 def main(argv: Sequence[str] | None = None) -> Path:
@@ -290,15 +377,25 @@ def main(argv: Sequence[str] | None = None) -> Path:
     p.add_argument("--workers", type=int, default=0, help="worker processes (0: cores)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted sweep")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument(
+        "--presets",
+        default=",".join(FINAL_PRESETS),
+        help="comma-separated presets of the final checkpoints' sweep (level 1)",
+    )
     args = p.parse_args(argv)
 
     runs = discover(args.runs)
     cfg = sweep_config(runs, args.episodes, args.out, args.workers)
-    cfg.validate()
-    out = run_sweep(
-        cfg, resume=args.resume, progress=not args.no_progress, show=False, module="train.rl_study"
+    final_cfg = sweep_config(
+        runs, args.episodes, args.out / "final", args.workers, args.presets.split(",")
     )
+    cfg.validate()
+    final_cfg.validate()
+    progress = not args.no_progress
+    out = run_sweep(cfg, resume=args.resume, progress=progress, show=False, module="train.rl_study")
+    run_sweep(final_cfg, resume=args.resume, progress=progress, show=False, module="train.rl_study")
     df = load_frame(out / "episodes.csv")
+    final = load_frame(out / "final" / "episodes.csv")
     curves = curve_frame(df, runs)
     curves.to_csv(out / "learning_curves.csv", index=False, float_format="%.17g")
     baselines = {
@@ -308,9 +405,22 @@ def main(argv: Sequence[str] | None = None) -> Path:
         for dist, gd in df.groupby("disturbance")
     }
     plot_curves(curves, eval_callback_curves(runs), baselines, out / "learning_curves.png")
-    table = final_table(df, runs, cfg.reference, cfg.bootstrap_resamples)
-    (out / "final.md").write_text(table + "\n")
-    print(table)
+    train_dist = str(runs[0].config["disturbance"]).partition(":")[0]
+    agg = aggregate(
+        aggregate_frame(final, runs), "path_dist_rms", out, cfg.bootstrap_resamples, seed=0
+    )
+    text = "\n\n".join(
+        [
+            f"## Final checkpoints ({final_steps(runs)} steps), presets at level 1",
+            final_table(final, runs, cfg.bootstrap_resamples),
+            "## Samples to reach the reference",
+            samples_to_reach(curves, baselines, runs, train_dist),
+            "## Aggregate over the presets (rliable)",
+            agg,
+        ]
+    )
+    (out / "final.md").write_text(text + "\n")
+    print(text)
     return out
 
 
