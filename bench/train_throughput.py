@@ -20,6 +20,12 @@ i.e. residual / pure ≥ 0.9.
 Run: ``python bench/train_throughput.py [--env ptrack_gym/TwoLinkTrack-v0]
 [--base passivity] [--steps 1000] [--warmup 300] [--repeats 3]``. One process at a
 time; it sets ``torch.set_num_threads(1)``.
+
+``--learners`` measures instead the learners the RL study chose between, on the pure env
+with the kernel reward (same rounds and medians): SB3 SAC with [256, 256] and [64, 64]
+networks, sb3-contrib's TQC [64, 64] (when installed: the ``zoo`` extra brings it), SB3
+PPO with 8 envs in a DummyVecEnv, and sbx's JAX SAC [64, 64] when ``sbx`` is installed
+(it is not a dependency: a row says so when it is missing).
 """
 
 from __future__ import annotations
@@ -90,6 +96,81 @@ def env_steps_per_s(env_id: str, residual: str, features: bool, steps: int, seed
     return steps / elapsed
 
 
+def learner_steps_per_s(label: str, env_id: str, steps: int, warmup: int, seed: int) -> float:
+    """Env steps per second of one learner configuration (see the module docstring)."""
+    res = validate(TrainConfig(out="/nonexistent", env_id=env_id, reward="kernel"))
+    kw = {"control_hz": res.control_hz, "max_episode_steps": res.max_episode_steps,
+          "reward": "kernel"}  # fmt: skip
+    off_policy = {"learning_starts": warmup, "buffer_size": warmup + steps + 10}
+    if label.startswith("SB3 PPO"):
+        from stable_baselines3 import PPO
+        from stable_baselines3.common.env_util import make_vec_env
+
+        venv = make_vec_env(env_id, n_envs=8, seed=seed, env_kwargs=kw)
+        model = PPO("MlpPolicy", venv, n_steps=256, batch_size=256, seed=seed, device="cpu")
+        model.learn(total_timesteps=8 * 256)  # one rollout + update untimed
+        t0 = time.perf_counter()
+        model.learn(total_timesteps=steps, reset_num_timesteps=False)
+        elapsed = time.perf_counter() - t0
+        venv.close()
+        return (model.num_timesteps - 8 * 256) / elapsed
+    env = gym.make(env_id, **kw)
+    net = [256, 256] if "256" in label else [64, 64]
+    if label.startswith("sbx"):
+        from sbx import SAC as SbxSAC  # optional: a JAX port
+
+        model = SbxSAC("MlpPolicy", env, policy_kwargs={"net_arch": net}, seed=seed, **off_policy)
+    elif label.startswith("sb3-contrib TQC"):
+        from sb3_contrib import TQC
+
+        model = TQC("MlpPolicy", env, policy_kwargs={"net_arch": net}, seed=seed,
+                    device="cpu", **off_policy)  # fmt: skip
+    else:
+        model = SAC("MlpPolicy", env, policy_kwargs={"net_arch": net}, seed=seed,
+                    device="cpu", **off_policy)  # fmt: skip
+    model.learn(total_timesteps=warmup + 50)
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=steps, reset_num_timesteps=False)
+    elapsed = time.perf_counter() - t0
+    env.close()
+    return steps / elapsed
+
+
+LEARNERS = (
+    "SB3 SAC [256, 256]",
+    "SB3 SAC [64, 64]",
+    "sb3-contrib TQC [64, 64]",
+    "SB3 PPO, 8 envs, DummyVecEnv",
+    "sbx SAC [64, 64]",
+)
+
+
+def learners_table(env_id: str, steps: int, warmup: int, repeats: int) -> None:
+    """Print the learners' steps/s (medians of ``repeats`` alternating rounds)."""
+    import importlib.util
+
+    available = {
+        label: importlib.util.find_spec(
+            "sbx" if label.startswith("sbx") else
+            "sb3_contrib" if label.startswith("sb3-contrib") else "stable_baselines3"
+        ) is not None
+        for label in LEARNERS
+    }  # fmt: skip
+    rates: dict[str, list[float]] = {k: [] for k in LEARNERS if available[k]}
+    for r in range(repeats):
+        order = list(rates) if r % 2 == 0 else list(reversed(rates))
+        for label in order:
+            ppo = label.startswith("SB3 PPO")
+            rates[label].append(learner_steps_per_s(label, env_id, steps * (8 if ppo else 1),
+                                                    warmup, r))  # fmt: skip
+            print(f"# round {r}: {label}: {rates[label][-1]:.0f} steps/s", flush=True)
+    print(f"\n{env_id}, kernel reward, 1 torch thread, medians of {repeats} rounds:\n")
+    print("| learner | steps/s |\n| --- | ---: |")
+    for label in LEARNERS:
+        value = f"{statistics.median(rates[label]):.0f}" if label in rates else "not installed"
+        print(f"| {label} | {value} |")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="ptrack_gym/TwoLinkTrack-v0")
@@ -98,8 +179,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=300, help="untimed steps first")
     parser.add_argument("--env-steps", type=int, default=5000, help="random-action steps")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--learners", action="store_true", help="the learners' table instead")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
+    if args.learners:
+        learners_table(args.env, args.steps, args.warmup, args.repeats)
+        return 0
 
     variants = {
         "pure": ("none", False),
