@@ -130,3 +130,13 @@ def test_groups_on_different_bases_each_meet_their_own_base(study: Path, tmp_pat
     assert len(curves.controllers) == 3 + 3 * 2  # every checkpoint (100, 200) of 3 runs
     assert final.controllers[3:] == [f"sb3:{r.path}@200" for r in runs]
     assert (final.disturbances, final.levels) == (["none", "payload"], [1.0])
+
+
+def test_thinning_keeps_multiples_and_the_last_checkpoint(study: Path) -> None:
+    from train.rl_study import thin
+
+    runs = discover(study)
+    assert [r.checkpoints for r in thin(runs, 200)] == [(200,)] * 3
+    assert [r.checkpoints for r in thin(runs, 100)] == [(100, 200)] * 3
+    with pytest.raises(InvalidConfigError):
+        thin(runs, 0)

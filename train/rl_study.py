@@ -33,6 +33,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -79,6 +80,20 @@ class Run:
     control_hz: float
     checkpoints: tuple[int, ...]  # step counts with a checkpoint, ascending
     config: dict[str, object]
+
+
+def thin(runs: Sequence[Run], every: int) -> list[Run]:
+    """The runs with only the checkpoints at multiples of ``every`` steps (and each run's
+    last one) kept: fewer points on the learning curves, the same final budget."""
+    if every <= 0:
+        raise InvalidConfigError(f"--every must be > 0, got {every}")
+    return [
+        dataclasses.replace(
+            r,
+            checkpoints=tuple(s for s in r.checkpoints if s % every == 0 or s == r.checkpoints[-1]),
+        )
+        for r in runs
+    ]
 
 
 def discover(root: Path) -> list[Run]:
@@ -382,9 +397,14 @@ def main(argv: Sequence[str] | None = None) -> Path:
         default=",".join(FINAL_PRESETS),
         help="comma-separated presets of the final checkpoints' sweep (level 1)",
     )
+    p.add_argument(
+        "--every", type=int, default=None, help="evaluate only checkpoints at multiples of this"
+    )
     args = p.parse_args(argv)
 
     runs = discover(args.runs)
+    if args.every is not None:
+        runs = thin(runs, args.every)
     cfg = sweep_config(runs, args.episodes, args.out, args.workers)
     final_cfg = sweep_config(
         runs, args.episodes, args.out / "final", args.workers, args.presets.split(",")
