@@ -53,7 +53,7 @@ def write(tmp_path: Path, data: dict) -> Path:
 
 def test_the_packaged_study_loads_with_equal_budgets() -> None:
     runs = load_campaign(ROOT / "train/configs/rl_study_two_link.yml", Path("/nonexistent"))
-    assert len(runs) == 15 and len({r.steps for r in runs}) == 1
+    assert len(runs) == 20 and len({r.steps for r in runs}) == 1
     assert {r.seed for r in runs} == {0, 1, 2, 3, 4}
     assert {r.residual for r in runs} == {"none", "passivity", "computed_torque"}
     residual = next(r for r in runs if r.residual == "passivity")
