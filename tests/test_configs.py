@@ -22,6 +22,11 @@ def _loader(name: str):
         from train.adversary import load_config
 
         return lambda p: load_config(p, []).validate()
+    if name.startswith("rl_study_"):
+        pytest.importorskip("stable_baselines3", reason="training needs the 'train' extra")
+        from train.rl_campaign import validate_campaign
+
+        return validate_campaign
     if "sb3:" in (ROOT / "train" / "configs" / f"{name}.yml").read_text():
         pytest.importorskip("stable_baselines3", reason="a trained model needs the 'train' extra")
     from train.evaluate import load_config

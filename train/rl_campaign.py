@@ -82,6 +82,18 @@ def load_campaign(path: Path, out: Path) -> list[TrainConfig]:
     return runs
 
 
+def validate_campaign(path: Path) -> int:
+    """Validate every run of the study ``path`` (no file or env touched); the run count.
+
+    Raises:
+        TrainConfigError: the first bad run config.
+    """
+    runs = load_campaign(path, Path("/nonexistent"))
+    for cfg in runs:
+        validate(cfg)
+    return len(runs)
+
+
 def plan(cfg: TrainConfig) -> TrainConfig | None:
     """What to do for one run: None if its budget is trained, else the config to run
     (``resume=True`` with the remaining steps when it was interrupted)."""
@@ -115,6 +127,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--workers", type=int, default=2)
     args = p.parse_args(argv)
+    validate_campaign(args.config)  # every run checked before the first starts
     command = shlex.join([sys.executable, "-m", "train.rl_campaign", *(argv or sys.argv[1:])])
     todo: list[Any] = [(c, command) for c in map(plan, load_campaign(args.config, args.out)) if c]
     print(f"{len(todo)} runs to train into {args.out}", flush=True)
