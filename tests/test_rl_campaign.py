@@ -7,6 +7,7 @@ import pytest
 
 pytest.importorskip("stable_baselines3", reason="the optional 'train' extra is not installed")
 
+import shlex
 from pathlib import Path
 
 import yaml
@@ -14,6 +15,7 @@ import yaml
 from train.checkpoints import latest_checkpoint
 from train.hyperparameters import TrainConfigError
 from train.rl_campaign import load_campaign, main, plan
+from train.train import parse_args
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -97,7 +99,11 @@ def test_campaign_trains_skips_and_resumes(tmp_path: Path) -> None:
         f.unlink()
     again = plan(runs[3])
     assert again is not None and again.resume and again.steps == 60
+    plan_of_resume = again
     assert main(["--config", str(study), "--out", str(out), "--workers", "1"]) == 0
     assert latest_checkpoint(Path(runs[3].out))[0] == 120
     lines = (Path(runs[3].out) / "command.txt").read_text().splitlines()
-    assert len(lines) == 2 and "train.rl_campaign" in lines[1] and "resume=True" in lines[1]
+    assert len(lines) == 2
+    # each line is the standalone train.train command of its invocation
+    first, second = (parse_args(shlex.split(line)[3:]) for line in lines)
+    assert first == runs[3] and second == plan_of_resume

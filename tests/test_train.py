@@ -325,3 +325,20 @@ def test_bad_safeguard_options_raise_before_anything_runs(tmp_path: Path, extra:
     with pytest.raises(TrainConfigError):
         validate(parse_args(args))
     assert not (tmp_path / "x").exists()
+
+
+def test_to_argv_round_trips_every_field(tmp_path: Path) -> None:
+    from train.train import to_argv
+
+    cfg = TrainConfig(
+        out=str(tmp_path / "r"), algo="td3", residual="computed_torque", scale_fraction=0.2,
+        disturbance="impulse:0.5", eval_disturbance="none", steps=123, seed=7,
+        overrides={"learning_starts": 0, "policy_kwargs": "dict(net_arch=[8])"}, n_envs=2,
+        vec_normalize=False, eval_freq=0, checkpoint_freq=50, resume=True,
+        zero_init_residual=True, control_hz=500.0, episode_s=1.5, start="rest_near_path",
+        reward_weights=[1.0, 0.0, 0.5], reward="kernel", kernel_weights=[1.0, 0.0, 0.0],
+        max_path_distance=0.3, action_penalty=0.05, gate_rad=0.002, critic_warmup_steps=10,
+        torch_threads=2, verbose=1,
+    )  # fmt: skip
+    assert parse_args(to_argv(cfg)) == cfg
+    assert parse_args(to_argv(TrainConfig(out="x"))) == TrainConfig(out="x")

@@ -29,8 +29,6 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
-import shlex
-import sys
 import traceback
 from collections.abc import Sequence
 from dataclasses import fields
@@ -110,12 +108,13 @@ def plan(cfg: TrainConfig) -> TrainConfig | None:
     return TrainConfig(**{**cfg.__dict__, "steps": budget - done, "resume": True})
 
 
-def _train_one(job: tuple[TrainConfig, str]) -> tuple[str, str | None]:
-    from train.train import run
+def _train_one(cfg: TrainConfig) -> tuple[str, str | None]:
+    """Train one run; its ``command.txt`` records the standalone ``python -m train.train``
+    command of this invocation (:func:`train.train.to_argv`)."""
+    from train.train import run, to_argv
 
-    cfg, command = job
     try:
-        run(cfg, command=f"{command}  # run {cfg.out}, resume={cfg.resume}, steps={cfg.steps}")
+        run(cfg, argv=to_argv(cfg))
     except Exception:  # reported, never silently dropped
         return cfg.out, traceback.format_exc()
     return cfg.out, None
@@ -128,8 +127,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--workers", type=int, default=2)
     args = p.parse_args(argv)
     validate_campaign(args.config)  # every run checked before the first starts
-    command = shlex.join([sys.executable, "-m", "train.rl_campaign", *(argv or sys.argv[1:])])
-    todo: list[Any] = [(c, command) for c in map(plan, load_campaign(args.config, args.out)) if c]
+    todo: list[Any] = [c for c in map(plan, load_campaign(args.config, args.out)) if c]
     print(f"{len(todo)} runs to train into {args.out}", flush=True)
     failed = []
     ctx = mp.get_context("spawn")

@@ -619,6 +619,32 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def to_argv(cfg: TrainConfig) -> list[str]:
+    """The command-line arguments that :func:`parse_args` turns back into ``cfg`` (only
+    the fields that differ from the defaults): the standalone command of a run."""
+    d = TrainConfig(out="")
+    flags = {a.dest: a for a in build_parser()._actions if a.option_strings}
+    out: list[str] = []
+    for f in dataclasses.fields(TrainConfig):
+        value = getattr(cfg, f.name)
+        if f.name != "out" and value == getattr(d, f.name):
+            continue
+        action = flags[f.name]
+        flag = action.option_strings[0]
+        if f.name == "overrides":
+            for key, v in value.items():
+                out += ["--set", f"{key}={v}"]
+        elif isinstance(action, argparse.BooleanOptionalAction):
+            out.append(flag if value else f"--no-{flag[2:]}")
+        elif isinstance(value, bool):
+            out.append(flag)
+        elif isinstance(value, (list, tuple)):
+            out += [flag, *(str(v) for v in value)]
+        else:
+            out += [flag, str(value)]
+    return out
+
+
 def parse_args(argv: Sequence[str] | None = None) -> TrainConfig:
     """A :class:`TrainConfig` from command-line arguments (argparse errors exit with 2)."""
     parser = build_parser()
