@@ -13,8 +13,8 @@ in a second sweep (``final/``). It then writes:
 
 * ``learning_curves.png`` — path-distance RMS (rad, log scale) against training steps:
   one thin line per run, the median over seeds thick, per group; the base controller
-  and computed torque as horizontal lines; one panel per disturbance; and the training
-  run's own ``EvalCallback`` return in a last panel;
+  and computed torque as horizontal lines; one panel per disturbance; and the runs' own
+  training episodes (reward per step, from their ``Monitor`` logs) in a last panel;
 * ``final.md`` (also printed) — per preset and group, at the largest step count every run
   has a checkpoint of (one budget for all), the path-distance RMS per seed and pooled, and
   the paired difference to the group's base alone (pure RL: to PD + gravity) with a
@@ -214,20 +214,25 @@ def curve_frame(df: pd.DataFrame, runs: Sequence[Run]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def eval_callback_curves(runs: Sequence[Run]) -> pd.DataFrame:
-    """The training runs' own EvalCallback logs: columns group, seed, steps, return."""
+def training_curves(runs: Sequence[Run], window: int = 10) -> pd.DataFrame:
+    """The runs' own training episodes (their ``Monitor`` CSVs): columns group, seed,
+    steps (env steps at the episode's end), reward_per_step (the episode's return over its
+    length, averaged over ``window`` episodes) — a curve every run has, whatever its
+    reward scale or episode ends."""
     rows = []
     for r in runs:
-        logs = (r.path / "eval").glob("from_*/evaluations.npz")
-        for f in sorted(logs, key=lambda f: int(f.parent.name.removeprefix("from_"))):
-            log = np.load(f)
-            for steps, results in zip(log["timesteps"], log["results"], strict=True):
-                rows.append(
-                    {"group": r.group, "seed": r.seed, "steps": int(steps),
-                     "return": float(np.mean(results))}
-                )  # fmt: skip
-    frame = pd.DataFrame(rows, columns=["group", "seed", "steps", "return"])
-    return frame.drop_duplicates(["group", "seed", "steps"], keep="last")
+        files = sorted(
+            r.path.glob("monitor/from_*/*.monitor.csv"),
+            key=lambda f: int(f.parent.name.removeprefix("from_")),
+        )
+        if not files:
+            continue
+        ep = pd.concat([pd.read_csv(f, skiprows=1) for f in files], ignore_index=True)
+        rate = (ep["r"] / ep["l"]).rolling(window, min_periods=1).mean()
+        for steps, value in zip(ep["l"].cumsum(), rate, strict=True):
+            rows.append({"group": r.group, "seed": r.seed, "steps": int(steps),
+                         "reward_per_step": float(value)})  # fmt: skip
+    return pd.DataFrame(rows, columns=["group", "seed", "steps", "reward_per_step"])
 
 
 def plot_curves(
@@ -264,15 +269,14 @@ def plot_curves(
     ax = axes[-1]
     for group, gg in returns.groupby("group"):
         for _, gs in gg.groupby("seed"):
-            ax.plot(gs["steps"], -gs["return"], color=colors.get(group, "k"), lw=0.8, alpha=0.4)
-        med = gg.groupby("steps")["return"].median()
-        ax.plot(med.index, -med.values, color=colors.get(group, "k"), lw=2.2, label=group)
-    ax.set_yscale("log")
+            ax.plot(gs["steps"], gs["reward_per_step"], color=colors.get(group, "k"), lw=0.8,
+                    alpha=0.6, label=None)  # fmt: skip
+        ax.plot([], [], color=colors.get(group, "k"), lw=2.2, label=group)
     ax.set_xlabel("training steps")
-    ax.set_ylabel("− episode return (the runs' EvalCallback)")
-    ax.set_title("training-time evaluation (training disturbance)")
+    ax.set_ylabel("training reward per step (10-episode mean)")
+    ax.set_title("training episodes (Monitor; each group its own reward)")
     if returns.empty:
-        ax.text(0.5, 0.5, "no EvalCallback logs", ha="center", transform=ax.transAxes)
+        ax.text(0.5, 0.5, "no Monitor logs", ha="center", transform=ax.transAxes)
     ax.grid(alpha=0.3, which="both")
     if not returns.empty:
         ax.legend(fontsize=7)
@@ -424,7 +428,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
         .mean()
         for dist, gd in df.groupby("disturbance")
     }
-    plot_curves(curves, eval_callback_curves(runs), baselines, out / "learning_curves.png")
+    plot_curves(curves, training_curves(runs), baselines, out / "learning_curves.png")
     train_dist = str(runs[0].config["disturbance"]).partition(":")[0]
     agg = aggregate(
         aggregate_frame(final, runs), "path_dist_rms", out, cfg.bootstrap_resamples, seed=0
