@@ -1,5 +1,6 @@
-"""The residual SAC model shipped in ``models/`` (issue 6): the main job's second sweep
-(``train/configs/main_rl.yml``) must be able to run it without training."""
+"""The models shipped in ``models/``: the main job's second sweep
+(``train/configs/main_rl.yml``) must be able to run each without training, and each must
+be the small, reproducible artefact its README describes."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ pytest.importorskip(
     "stable_baselines3", reason="the optional 'train' extra (SB3, torch) is not installed"
 )
 
+import shlex
 from pathlib import Path
 
 import numpy as np
@@ -17,30 +19,46 @@ import yaml
 from train.episode import EpisodeSettings, Task, run_episode
 from train.evaluate import load_config
 from train.sb3_runs import sb3_files
+from train.train import parse_args
 
 ROOT = Path(__file__).resolve().parents[1]
-MODEL = "sb3:models/sac_residual_passivity_twolink"
+MAIN_RL = ROOT / "train/configs/main_rl.yml"
+MODELS = [c for c in yaml.safe_load(MAIN_RL.read_text())["controllers"] if c.startswith("sb3:")]
 
 
-def test_main_rl_config_includes_the_shipped_model_and_validates(monkeypatch) -> None:
-    monkeypatch.chdir(ROOT)  # the config names the model relative to the repository
-    cfg = load_config(ROOT / "train/configs/main_rl.yml", [])
-    assert MODEL in cfg.controllers
-    cfg.validate()  # the model's files exist and it was trained on the config's env
-    run_dir, model_zip, _ = sb3_files(MODEL)
-    assert model_zip.stat().st_size < 5_000_000  # "a few MB at most"
-    trained = yaml.safe_load((run_dir / "config.yml").read_text())
-    assert trained["config"]["residual"] == "passivity"
+def test_main_rl_config_includes_every_shipped_model_and_validates(monkeypatch) -> None:
+    monkeypatch.chdir(ROOT)  # the config names the models relative to the repository
+    shipped = {f"sb3:models/{p.name}" for p in (ROOT / "models").iterdir() if p.is_dir()}
+    assert shipped == set(MODELS)
+    load_config(MAIN_RL, []).validate()  # the files exist, trained on the config's env
 
 
-def test_shipped_model_runs_deterministically_and_acts(monkeypatch) -> None:
-    """Two runs of one episode give identical metrics, and the policy's correction is
-    not zero: the loaded network drives the residual (a broken observation layout or a
-    failed load would not give a finite, repeatable, non-trivial run)."""
+@pytest.mark.parametrize("model", MODELS)
+def test_shipped_model_is_small_and_its_command_reproduces_its_config(model: str) -> None:
+    run_dir, model_zip, _ = sb3_files(model)
+    run_dir = ROOT / run_dir
+    assert (ROOT / model_zip).stat().st_size < 5_000_000  # "a few MB at most"
+    assert (run_dir / "README.md").exists()
+    saved = yaml.safe_load((run_dir / "config.yml").read_text())["config"]
+    command = (run_dir / "command.txt").read_text().splitlines()[-1]
+    argv = shlex.split(command)
+    assert argv[1:3] == ["-m", "train.train"]
+    rebuilt = parse_args(argv[3:])
+    for key, value in saved.items():
+        if key not in ("out", "resume", "steps"):
+            assert getattr(rebuilt, key) == value, key
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_shipped_model_runs_deterministically_and_acts(model: str, monkeypatch) -> None:
+    """Two runs of one episode give identical metrics, and the policy acts: a residual's
+    correction changes its base's torque, a pure policy keeps the arm near the path (a
+    broken observation layout or a failed load would not give a finite, repeatable,
+    non-trivial run)."""
     monkeypatch.chdir(ROOT)
-    cfg = load_config(ROOT / "train/configs/main_rl.yml", ["episode_s=1.0"])
+    cfg = load_config(MAIN_RL, ["episode_s=1.0"])
     settings: EpisodeSettings = cfg.settings()
-    task = Task(MODEL, "impulse", 1.0, 0, 0)
+    task = Task(model, "impulse", 1.0, 0, 0)
     row_a, trace = run_episode(task, settings, keep_trace=True)
     row_b, _ = run_episode(task, settings, keep_trace=False)
     assert row_a["steps"] == 250  # 1 s at the model's 250 Hz
@@ -48,8 +66,10 @@ def test_shipped_model_runs_deterministically_and_acts(monkeypatch) -> None:
         if key != "wall_s":
             assert row_b[key] == value or (value != value and row_b[key] != row_b[key]), key
     assert np.isfinite(row_a["path_dist_rms"]) and not row_a["failed"]
-    base_task = Task("passivity", "impulse", 1.0, 0, 0)
-    base, _ = run_episode(base_task, settings, keep_trace=False)
-    assert base["steps"] == 250
-    assert row_a["tau_rms_frac"] != base["tau_rms_frac"]  # the residual changed the torque
     assert trace is not None
+    base = yaml.safe_load((ROOT / sb3_files(model)[0] / "config.yml").read_text())["config"]
+    if base["residual"] != "none":
+        alone, _ = run_episode(Task(base["residual"], "impulse", 1.0, 0, 0), settings)
+        assert row_a["tau_rms_frac"] != alone["tau_rms_frac"]  # the residual acted
+    else:
+        assert row_a["path_dist_rms"] < 0.1  # a pure policy that tracks, roughly
