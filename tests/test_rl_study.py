@@ -33,7 +33,7 @@ def _train(out: Path, residual: str, seed: int) -> None:
 @pytest.fixture(scope="module")
 def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("study")
-    _train(root / "residual_s0", "passivity", 0)
+    _train(root / "residual-passivity_s0", "passivity", 0)
     _train(root / "pure_s0", "none", 0)
     _train(root / "pure_s1", "none", 1)
     return root
@@ -98,7 +98,7 @@ def test_a_normalized_run_without_its_statistics_is_refused(study: Path, tmp_pat
     from train.episode import EpisodeSettings, Task, run_episode
 
     run = tmp_path / "run"
-    shutil.copytree(study / "residual_s0", run)
+    shutil.copytree(study / "residual-passivity_s0", run)
     (run / "vecnormalize.pkl").unlink()
     settings = EpisodeSettings(
         env_id="ptrack_gym/TwoLinkTrack-v0", episode_s=0.2, control_hz=250.0,
@@ -112,9 +112,9 @@ def test_groups_on_different_bases_each_meet_their_own_base(study: Path, tmp_pat
     """A residual over computed torque is its own group, compared with computed torque; a
     gated residual is a group of its own too; the sweeps hold every base alone."""
     root = tmp_path / "bases"
-    shutil.copytree(study / "residual_s0", root / "a")
+    shutil.copytree(study / "residual-passivity_s0", root / "a")
     for name, change in (("b", {"residual": "computed_torque"}), ("c", {"gate_rad": 0.01})):
-        shutil.copytree(study / "residual_s0", root / name)
+        shutil.copytree(study / "residual-passivity_s0", root / name)
         cfg_file = root / name / "config.yml"
         cfg = yaml.safe_load(cfg_file.read_text())
         cfg["config"].update(change)
@@ -140,3 +140,18 @@ def test_thinning_keeps_multiples_and_the_last_checkpoint(study: Path) -> None:
     assert [r.checkpoints for r in thin(runs, 100)] == [(100, 200)] * 3
     with pytest.raises(InvalidConfigError):
         thin(runs, 0)
+
+
+def test_campaign_folder_names_are_the_groups(study: Path, tmp_path: Path) -> None:
+    """``<group>_s<seed>`` folders (train.rl_campaign's) keep the campaign's group names,
+    so two groups on one base with different safeguards stay apart."""
+    root = tmp_path / "named"
+    for name, penalty in (("res-a_s0", 0.0), ("res-b_s0", 0.2)):
+        shutil.copytree(study / "residual-passivity_s0", root / name)
+        cfg_file = root / name / "config.yml"
+        cfg = yaml.safe_load(cfg_file.read_text())
+        cfg["config"]["action_penalty"] = penalty
+        cfg_file.write_text(yaml.safe_dump(cfg))
+    runs = discover(root)
+    assert sorted(r.group for r in runs) == ["res-a", "res-b"]
+    assert {r.base for r in runs} == {"passivity"}

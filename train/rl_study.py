@@ -2,14 +2,15 @@
 
 A *study* is a folder of ``python -m train.train`` runs (``python -m train.rl_campaign``
 trains one) that share env, algorithm, training disturbance, control rate, episode length
-and start mode, and differ in seed and in their *group*: pure RL, or a residual on a base
-controller (``residual-<base>``, ``-gated`` with a path-error gate), each group with its
-own reward and safeguards. This script evaluates **every checkpoint of every run** and the
-base controllers alone (every group's base, computed torque and PD + gravity) through one
-``train.evaluate`` sweep (``sb3:<run>@<steps>`` entries), so every policy meets the same
-start states and the same disturbance schedules, under the training disturbance and
-undisturbed; then the **final checkpoints** under every preset of ``--presets`` at level 1
-in a second sweep (``final/``). It then writes:
+and start mode, and differ in seed and in their *group* — the campaign's group name when
+the folder is named ``<group>_s<seed>``, else pure RL or a residual on a base controller
+(``residual-<base>``, ``-gated`` with a path-error gate) —, each group with its own reward
+and safeguards (the same within a group). This script evaluates **every checkpoint of
+every run** and the base controllers alone (every group's base, computed torque and
+PD + gravity) through one ``train.evaluate`` sweep (``sb3:<run>@<steps>`` entries), so
+every policy meets the same start states and the same disturbance schedules, under the
+training disturbance and undisturbed; then the **final checkpoints** under every preset
+of ``--presets`` at level 1 in a second sweep (``final/``). It then writes:
 
 * ``learning_curves.png`` — path-distance RMS (rad, log scale) against training steps:
   one thin line per run, the median over seeds thick, per group; the base controller
@@ -51,6 +52,9 @@ from train.sweep import run_sweep
 
 #: Checkpoint file names of ``train.train`` (SB3's CheckpointCallback).
 _CKPT = re.compile(r"rl_model_(\d+)_steps\.zip$")
+
+#: Run folders of ``train.rl_campaign``: ``<group>_s<seed>``.
+_CAMPAIGN_RUN = re.compile(r"^(.+)_s(\d+)$")
 
 #: The run-config keys every run of a study must share.
 SHARED_KEYS = ("algo", "env_id", "disturbance", "episode_s", "start")
@@ -113,9 +117,13 @@ def discover(root: Path) -> list[Run]:
             if (m := _CKPT.search(f.name))
         )
         base = str(c["residual"])
-        group = "pure" if base == "none" else f"residual-{base}"
-        if base != "none" and c.get("gate_rad") is not None:
-            group += "-gated"
+        named = _CAMPAIGN_RUN.match(run_dir.name)
+        if named and int(named.group(2)) == int(c["seed"]):
+            group = named.group(1)  # train.rl_campaign's <group>_s<seed>: its group name
+        else:
+            group = "pure" if base == "none" else f"residual-{base}"
+            if base != "none" and c.get("gate_rad") is not None:
+                group += "-gated"
         runs.append(
             Run(
                 path=run_dir,
