@@ -290,7 +290,7 @@ class ResidualWrapper(
         if self.gate_rad is not None:
             d = u.projector.nearest(q).distance
             gate = -math.expm1(-((d / self.gate_rad) ** 2))  # γ = 1 − exp(−(d/d_g)²)
-        tau_res = (gate * self.scale_nm) * a if self.gate_rad is not None else self.scale_nm * a
+        tau_res = (gate * self.scale_nm) * a  # (n,) N·m; γ = 1 exactly without a gate
         inner_action = torque_to_action(tau_base + tau_res, self.torque_limits_nm)
         obs, reward, terminated, truncated, info = self.env.step(inner_action)
         if self.action_penalty > 0.0:
@@ -327,11 +327,28 @@ def make_residual_env(
     Raises:
         InvalidConfigError: (a ``ValueError``) an unknown base or a bad scale fraction.
     """
+    _check_base(base, scale_fraction)
+    env = gym.make(env_id, **env_kwargs)
+    return _wrap(env, base, scale_fraction, include_controller_state, action_penalty, gate_rad)
+
+
+def _check_base(base: str, scale_fraction: float) -> None:
     if base not in CONTROLLER_NAMES:
         raise InvalidConfigError(f"unknown base controller {base!r}; known: {CONTROLLER_NAMES}")
     if not (math.isfinite(scale_fraction) and scale_fraction >= 0.0):
         raise InvalidConfigError(f"scale_fraction must be finite and >= 0, got {scale_fraction}")
-    env = gym.make(env_id, **env_kwargs)
+
+
+def _wrap(
+    env: gym.Env[np.ndarray, np.ndarray],
+    base: str,
+    scale_fraction: float,
+    include_controller_state: bool,
+    action_penalty: float,
+    gate_rad: float | None,
+) -> ResidualWrapper:
+    """``env`` in a :class:`ResidualWrapper` around the default-gain ``base`` with scale =
+    ``scale_fraction`` · τ_max (N·m); ``env`` is closed if that fails."""
     try:
         limits = np.asarray(env.unwrapped.torque_limits_nm, dtype=np.float64)
         scale_nm = tuple(float(x) for x in scale_fraction * limits)
@@ -373,19 +390,9 @@ def residual_env(
     """
     from ptrack_gym.envs.tracking import TrackingEnv
 
-    if base not in CONTROLLER_NAMES:
-        raise InvalidConfigError(f"unknown base controller {base!r}; known: {CONTROLLER_NAMES}")
-    if not (math.isfinite(scale_fraction) and scale_fraction >= 0.0):
-        raise InvalidConfigError(f"scale_fraction must be finite and >= 0, got {scale_fraction}")
+    _check_base(base, scale_fraction)
     env = TrackingEnv(robot=robot, **env_kwargs)
-    try:
-        scale_nm = tuple(float(x) for x in scale_fraction * env.torque_limits_nm)
-        wrapper = ResidualWrapper(
-            env, base, scale_nm, include_controller_state, action_penalty, gate_rad
-        )
-    except BaseException:
-        env.close()
-        raise
+    wrapper = _wrap(env, base, scale_fraction, include_controller_state, action_penalty, gate_rad)
     wrapper._registered = True
     return wrapper
 
