@@ -22,7 +22,7 @@ def _loader(name: str):
         from train.adversary import load_config
 
         return lambda p: load_config(p, []).validate()
-    if name.startswith("rl_study_"):
+    if name.startswith("rl_"):  # the RL studies (train.rl_campaign)
         pytest.importorskip("stable_baselines3", reason="training needs the 'train' extra")
         from train.rl_campaign import validate_campaign
 
