@@ -35,6 +35,7 @@ import statistics
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -63,6 +64,15 @@ def make(env_id: str, residual: str, features: bool = True) -> tuple[gym.Env, di
     return env, res.algo_kwargs
 
 
+def timed_learn(model: Any, untimed: int, steps: int) -> float:
+    """Seconds of ``model.learn(steps)`` after an untimed ``model.learn(untimed)`` (the
+    buffer fill and first updates, which are not the steady rate)."""
+    model.learn(total_timesteps=untimed)
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=steps, reset_num_timesteps=False)
+    return time.perf_counter() - t0
+
+
 def sac_steps_per_s(
     env_id: str, residual: str, features: bool, steps: int, warmup: int, seed: int
 ) -> float:
@@ -71,10 +81,7 @@ def sac_steps_per_s(
     env, kwargs = make(env_id, residual, features)
     kwargs = {**kwargs, "learning_starts": warmup, "buffer_size": warmup + steps + 10}
     model = SAC(env=env, seed=seed, device="cpu", **kwargs)
-    model.learn(total_timesteps=warmup + 50)
-    t0 = time.perf_counter()
-    model.learn(total_timesteps=steps, reset_num_timesteps=False)
-    elapsed = time.perf_counter() - t0
+    elapsed = timed_learn(model, warmup + 50, steps)
     env.close()
     return steps / elapsed
 
@@ -108,10 +115,7 @@ def learner_steps_per_s(label: str, env_id: str, steps: int, warmup: int, seed: 
 
         venv = make_vec_env(env_id, n_envs=8, seed=seed, env_kwargs=kw)
         model = PPO("MlpPolicy", venv, n_steps=256, batch_size=256, seed=seed, device="cpu")
-        model.learn(total_timesteps=8 * 256)  # one rollout + update untimed
-        t0 = time.perf_counter()
-        model.learn(total_timesteps=steps, reset_num_timesteps=False)
-        elapsed = time.perf_counter() - t0
+        elapsed = timed_learn(model, 8 * 256, steps)  # one rollout + update untimed
         venv.close()
         return (model.num_timesteps - 8 * 256) / elapsed
     env = gym.make(env_id, **kw)
@@ -128,35 +132,28 @@ def learner_steps_per_s(label: str, env_id: str, steps: int, warmup: int, seed: 
     else:
         model = SAC("MlpPolicy", env, policy_kwargs={"net_arch": net}, seed=seed,
                     device="cpu", **off_policy)  # fmt: skip
-    model.learn(total_timesteps=warmup + 50)
-    t0 = time.perf_counter()
-    model.learn(total_timesteps=steps, reset_num_timesteps=False)
-    elapsed = time.perf_counter() - t0
+    elapsed = timed_learn(model, warmup + 50, steps)
     env.close()
     return steps / elapsed
 
 
-LEARNERS = (
-    "SB3 SAC [256, 256]",
-    "SB3 SAC [64, 64]",
-    "sb3-contrib TQC [64, 64]",
-    "SB3 PPO, 8 envs, DummyVecEnv",
-    "sbx SAC [64, 64]",
-)
+#: The learners of ``--learners``, each with the package it needs.
+LEARNERS: dict[str, str] = {
+    "SB3 SAC [256, 256]": "stable_baselines3",
+    "SB3 SAC [64, 64]": "stable_baselines3",
+    "sb3-contrib TQC [64, 64]": "sb3_contrib",
+    "SB3 PPO, 8 envs, DummyVecEnv": "stable_baselines3",
+    "sbx SAC [64, 64]": "sbx",
+}
 
 
 def learners_table(env_id: str, steps: int, warmup: int, repeats: int) -> None:
     """Print the learners' steps/s (medians of ``repeats`` alternating rounds)."""
     import importlib.util
 
-    available = {
-        label: importlib.util.find_spec(
-            "sbx" if label.startswith("sbx") else
-            "sb3_contrib" if label.startswith("sb3-contrib") else "stable_baselines3"
-        ) is not None
-        for label in LEARNERS
-    }  # fmt: skip
-    rates: dict[str, list[float]] = {k: [] for k in LEARNERS if available[k]}
+    rates: dict[str, list[float]] = {  # the learners whose package is installed
+        label: [] for label, pkg in LEARNERS.items() if importlib.util.find_spec(pkg)
+    }
     for r in range(repeats):
         order = list(rates) if r % 2 == 0 else list(reversed(rates))
         for label in order:

@@ -31,7 +31,7 @@ import argparse
 import multiprocessing as mp
 import traceback
 from collections.abc import Sequence
-from dataclasses import fields
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -96,16 +96,16 @@ def plan(cfg: TrainConfig) -> TrainConfig | None:
     """What to do for one run: None if its budget is trained, else the config to run
     (``resume=True`` with the remaining steps when it was interrupted)."""
     run_dir = Path(cfg.out)
-    budget = validate(TrainConfig(**{**cfg.__dict__, "out": "/nonexistent"})).steps
+    budget = validate(replace(cfg, out="/nonexistent")).steps
     found = latest_checkpoint(run_dir)
     if found is None:
         if (run_dir / "config.yml").exists():  # started, no checkpoint yet: start over
             (run_dir / "config.yml").unlink()
-        return TrainConfig(**{**cfg.__dict__, "steps": budget})
+        return replace(cfg, steps=budget)
     done = found[0]
     if done >= budget:
         return None
-    return TrainConfig(**{**cfg.__dict__, "steps": budget - done, "resume": True})
+    return replace(cfg, steps=budget - done, resume=True)
 
 
 def _train_one(cfg: TrainConfig) -> tuple[str, str | None]:

@@ -53,6 +53,7 @@ from torch import nn
 
 from agents.registry import CONTROLLER_NAMES
 from agents.residual import check_safeguards
+from ptrack_gym.envs.rewards import REWARD_MODES
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
 from train.checkpoints import (
@@ -444,11 +445,8 @@ def _yaml_safe(value: Any) -> Any:
     return repr(value)
 
 
-def write_run_files(
-    res: Resolved, run_dir: Path, argv: Sequence[str] | None, command: str | None = None
-) -> None:
-    """config.yml (resolved), command.txt (appended: ``command``, or this script's command
-    line with ``argv``), versions.json."""
+def write_run_files(res: Resolved, run_dir: Path, argv: Sequence[str] | None) -> None:
+    """config.yml (resolved), command.txt (appended), versions.json."""
     run_dir.mkdir(parents=True, exist_ok=True)
     config = {
         "config": dataclasses.asdict(res.cfg),
@@ -465,17 +463,14 @@ def write_run_files(
     }
     (run_dir / "config.yml").write_text(yaml.safe_dump(_yaml_safe(config), sort_keys=False))
     args = list(sys.argv[1:] if argv is None else argv)
-    line = command or shlex.join([sys.executable, "-m", "train.train", *args])
+    line = shlex.join([sys.executable, "-m", "train.train", *args])
     with (run_dir / "command.txt").open("a") as fh:
         fh.write(line + "\n")
     (run_dir / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
 
 
-def run(
-    cfg: TrainConfig, argv: Sequence[str] | None = None, command: str | None = None
-) -> TrainResult:
-    """Validate ``cfg``, build the envs and the model (or resume), train, save
-    (``command``: the line ``command.txt`` records, default this script's with ``argv``).
+def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
+    """Validate ``cfg``, build the envs and the model (or resume), train, save.
 
     Raises:
         TrainConfigError: a bad config, before any env is built or any file written.
@@ -483,7 +478,7 @@ def run(
     res = validate(cfg)
     run_dir = Path(cfg.out)
     torch.set_num_threads(cfg.torch_threads)
-    write_run_files(res, run_dir, argv, command)
+    write_run_files(res, run_dir, argv)
     start_steps = 0 if not cfg.resume else latest_checkpoint(run_dir)[0]  # type: ignore[index]
     train_env, eval_env = make_envs(res, run_dir, session=f"from_{start_steps}")
     try:
@@ -518,8 +513,8 @@ def run(
         model.set_logger(configure_logger(str(run_dir / "tb" / f"from_{start_steps}"), formats))
         callbacks: list[BaseCallback] = []
         if cfg.critic_warmup_steps > 0:
-            learning_starts = int(res.algo_kwargs.get("learning_starts", 100))
-            callbacks.append(ActorWarmupCallback(learning_starts + cfg.critic_warmup_steps))
+            until = int(model.learning_starts) + cfg.critic_warmup_steps  # type: ignore[attr-defined]
+            callbacks.append(ActorWarmupCallback(until))
         if cfg.checkpoint_freq > 0:
             callbacks.append(
                 PruningCheckpointCallback(
@@ -603,7 +598,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--reward-weights", type=float, nargs=3, default=None,
         metavar=("W_PATH", "W_TIME", "W_EFFORT"), help="the env's reward weights",
     )  # fmt: skip
-    p.add_argument("--reward", choices=("quadratic", "kernel"), default=d.reward)
+    p.add_argument("--reward", choices=REWARD_MODES, default=d.reward)
     p.add_argument(
         "--kernel-weights", type=float, nargs=3, default=None,
         metavar=("W_PATH", "W_TIME", "W_EFFORT"), help="weights of --reward kernel",

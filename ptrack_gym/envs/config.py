@@ -118,20 +118,7 @@ class EnvConfig:
             raise InvalidConfigError(f"start must be one of {START_MODES}, got {self.start!r}")
         set_(self, "start_noise_rad", _real(self.start_noise_rad, "start_noise_rad"))
         set_(self, "start_offset_rad", _real(self.start_offset_rad, "start_offset_rad"))
-        weights = self.reward_weights
-        if (
-            isinstance(weights, (str, bytes))
-            or not isinstance(weights, Sequence)
-            or len(weights) != 3
-        ):
-            raise InvalidConfigError(
-                f"reward_weights must be three numbers (path, time, effort), got {weights!r}"
-            )
-        set_(
-            self,
-            "reward_weights",
-            tuple(_real(w, f"reward_weights[{i}]") for i, w in enumerate(weights)),
-        )
+        set_(self, "reward_weights", _reals(self.reward_weights, "reward_weights", size=3))
         set_(self, "unstable_penalty", _real(self.unstable_penalty, "unstable_penalty"))
         if self.reward not in REWARD_MODES:
             raise InvalidConfigError(f"reward must be one of {REWARD_MODES}, got {self.reward!r}")
