@@ -3,6 +3,7 @@ the refusal of corrupt results files and bad configs."""
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 
 import gymnasium as gym
@@ -16,7 +17,7 @@ from agents.registry import make_controller
 from ptrack_gym.errors import InvalidConfigError
 from train.evaluate import load_config, main
 from train.results import COLUMNS, CorruptResultsError, read_episodes
-from train.sweep import run_sweep
+from train.sweep import _run_processes, run_sweep
 
 TINY = [
     "env_id=ptrack_gym/TwoLinkTrack-v0",
@@ -120,6 +121,19 @@ def test_resume_completes_without_duplicates(full_run, tmp_path) -> None:
 def test_two_workers_give_the_same_numbers(full_run, tmp_path) -> None:
     out = run_sweep(tiny(tmp_path, "two", "workers=2"), progress=False)
     pd.testing.assert_frame_equal(numbers(out / "episodes.csv"), numbers(full_run / "episodes.csv"))
+
+
+def test_two_runners_share_the_tasks_and_a_failed_episode_stops_the_sweep(tmp_path) -> None:
+    """workers=2: this process and one spawned worker take tasks from one queue; every task
+    comes back once, and an episode that raises (here an unknown controller, wherever it
+    ran) ends the sweep with its error instead of being skipped."""
+    cfg = tiny(tmp_path, "runners", "workers=2")
+    tasks, settings = cfg.tasks(), cfg.settings()
+    done = [task.key() for _, _, task in _run_processes(tasks, settings, 2, set())]
+    assert sorted(done) == sorted(t.key() for t in tasks)
+    bad = dataclasses.replace(tasks[1], controller="no_such_controller")
+    with pytest.raises(InvalidConfigError, match="no_such_controller"):
+        list(_run_processes([tasks[0], bad, *tasks[2:]], settings, 2, set()))
 
 
 def test_ray_backend_gives_the_same_rows(full_run, tmp_path) -> None:

@@ -160,8 +160,13 @@ def _sb3_env_and_policy(
     controller: str, settings: EpisodeSettings, disturbance: str, level: float
 ) -> tuple[gym.Env[Any, Any], Predictor]:
     def build() -> tuple[gym.Env[Any, Any], Predictor]:
+        import torch
+
         from train.sb3_runs import load_sb3_policy  # torch and SB3 only for a model
 
+        # One observation per call: more torch threads only contend with the sweep's other
+        # runners (the sweep's own process runs episodes too, beside its spawned workers).
+        torch.set_num_threads(1)
         policy, cfg = load_sb3_policy(controller, settings.env_id)
         c, derived = cfg["config"], cfg["derived"]
         env = build_env(

@@ -86,7 +86,8 @@ class EvalConfig:
     bootstrap_resamples: int = 2000
     """Bootstrap resamples of every confidence interval."""
     workers: int = 0
-    """Worker processes (0: the number of cores)."""
+    """Episode runners (0: the number of cores): with the process backend, this process
+    and ``workers − 1`` spawned worker processes."""
     backend: str = "process"
     """"process" or "ray"."""
     ray_address: str | None = None
@@ -207,7 +208,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="override a config field (value parsed as YAML); repeatable",
     )
     parser.add_argument("--out", help="output folder (overrides the config)")
-    parser.add_argument("--workers", type=int, help="worker processes (0: cores)")
+    parser.add_argument("--workers", type=int, help="episode runners: this process and N-1 spawned ones (0: cores)")
     parser.add_argument("--backend", choices=["process", "ray"])
     parser.add_argument("--ray-address", help="Ray cluster address")
     parser.add_argument("--resume", action="store_true", help="continue an interrupted sweep")

@@ -2,8 +2,9 @@
 they finish, then the summary, plots and video.
 
 :func:`run_sweep` is what ``python -m train.evaluate`` runs for an
-:class:`~train.evaluate.EvalConfig`. Worker processes (spawned, one thread each) import
-only :mod:`train.episode` and what an episode needs.
+:class:`~train.evaluate.EvalConfig`. With ``workers`` > 1 this process runs episodes too,
+beside ``workers − 1`` spawned worker processes (one thread each) that import only
+:mod:`train.episode` and what an episode needs.
 """
 
 from __future__ import annotations
@@ -12,8 +13,15 @@ import dataclasses
 import os
 import shlex
 import sys
+from collections import deque
 from collections.abc import Iterator
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import (
+    FIRST_COMPLETED,
+    Future,
+    ProcessPoolExecutor,
+    ThreadPoolExecutor,
+    wait,
+)
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -45,6 +53,13 @@ _ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 def _run_processes(
     tasks: list[Task], settings: EpisodeSettings, workers: int, example: set[Task]
 ) -> Iterator[tuple[dict[str, Any], Any, Task]]:
+    """Run ``tasks`` on ``workers`` processes: this one and ``workers − 1`` spawned ones.
+
+    This process runs episodes too (in a thread, while its main thread hands out tasks and
+    collects results), so it starts at once while the spawned workers import; every
+    runner takes its next task from one queue when it finishes one, each spawned worker
+    holding at most one more in reserve. Results are yielded as they finish (any order;
+    an episode's numbers never depend on where it ran — tested)."""
     if workers == 1:
         for task in tasks:
             row, trace = run_episode(task, settings, task in example)
@@ -55,17 +70,35 @@ def _run_processes(
     for name in _ONE_THREAD:
         os.environ.setdefault(name, "1")
     ctx = mp.get_context("spawn")  # no PyBullet client or thread is inherited
-    pool = ProcessPoolExecutor(workers, mp_context=ctx)
+    pool = ProcessPoolExecutor(workers - 1, mp_context=ctx)
+    local = ThreadPoolExecutor(1, thread_name_prefix="episodes")
+    todo = deque(tasks)
+    pending: dict[Future[tuple[dict[str, Any], Any]], tuple[Task, bool]] = {}
+    spawned_busy = 0  # tasks given to the spawned workers and not yet back
+    local_busy = False
     try:
-        pending = {pool.submit(run_episode, t, settings, t in example): t for t in tasks}
-        while pending:
+        while todo or pending:
+            while todo and spawned_busy < 2 * (workers - 1):  # one running, one in reserve
+                task = todo.popleft()
+                pending[pool.submit(run_episode, task, settings, task in example)] = (task, True)
+                spawned_busy += 1
+            if todo and not local_busy:
+                task = todo.popleft()
+                pending[local.submit(run_episode, task, settings, task in example)] = (task, False)
+                local_busy = True
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)
             for fut in finished:
-                task = pending.pop(fut)
+                task, spawned = pending.pop(fut)
+                if spawned:
+                    spawned_busy -= 1
+                else:
+                    local_busy = False
                 row, trace = fut.result()  # a failed episode raises here...
                 yield row, trace, task
     finally:  # ...and the queued ones are cancelled, not run for nothing
+        todo.clear()
         pool.shutdown(wait=True, cancel_futures=True)
+        local.shutdown(wait=True, cancel_futures=True)
 
 
 def _run_ray(
