@@ -208,7 +208,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="override a config field (value parsed as YAML); repeatable",
     )
     parser.add_argument("--out", help="output folder (overrides the config)")
-    parser.add_argument("--workers", type=int, help="episode runners: this process and N-1 spawned ones (0: cores)")
+    parser.add_argument(
+        "--workers", type=int, help="episode runners: this process and N-1 spawned ones (0: cores)"
+    )
     parser.add_argument("--backend", choices=["process", "ray"])
     parser.add_argument("--ray-address", help="Ray cluster address")
     parser.add_argument("--resume", action="store_true", help="continue an interrupted sweep")
