@@ -24,12 +24,14 @@ appended, with the torque, to ``records`` (cleared at every controller reset).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
 from agents.base import Controller, FloatArray
 from ptrack_gym.errors import ControllerDivergedError
+from ptrack_gym.kernels import kernel
 
 
 def require_finite_torque(tau_nm: FloatArray, controller: Controller, t_s: float) -> FloatArray:
@@ -51,6 +53,19 @@ def torque_to_action(tau_nm: FloatArray, torque_limits_nm: FloatArray) -> np.nda
     torques give bit-identical actions.
     """
     return np.minimum(np.maximum(tau_nm / torque_limits_nm, -1.0), 1.0).astype(np.float32)
+
+
+@kernel
+def checked_action(tau_nm: FloatArray, torque_limits_nm: FloatArray, action: np.ndarray) -> int:
+    """The compiled twin of :func:`require_finite_torque` followed by
+    :func:`torque_to_action`: ``action`` (float32, (n,)) ← clip(τ / τ_max, −1, 1) when every
+    τ is finite; returns the index of the first non-finite entry of τ, or −1."""
+    for j in range(tau_nm.shape[0]):
+        if not math.isfinite(tau_nm[j]):
+            return j
+    for j in range(tau_nm.shape[0]):
+        action[j] = np.float32(min(max(tau_nm[j] / torque_limits_nm[j], -1.0), 1.0))
+    return -1
 
 
 class ControllerPolicy:
@@ -105,20 +120,34 @@ class ControllerPolicy:
         Raises:
             ControllerDivergedError: the controller returned a non-finite torque.
         """
-        if self._episode != self.env.episode:
-            self.reset_controller(observation)
-        q, qd = self._state(observation)
-        tau = require_finite_torque(
-            self.controller.step(q, qd, self.env.dt), self.controller, self.env.t
-        )
-        self.last_tau_nm = tau
-        if self.record:
-            self.records.append({"t_s": self.env.t, "tau_nm": tau, **self.last_diagnostics})
+        tau = require_finite_torque(self._step(observation), self.controller, self.env.t)
+        self._accept(tau)
         return tau
 
     def action(self, observation: np.ndarray) -> np.ndarray:
-        """One control step as a normalized action, a = clip(τ / τ_max, −1, 1), float32."""
-        return torque_to_action(self.torque(observation), self.torque_limits_nm)
+        """One control step as a normalized action, a = clip(τ / τ_max, −1, 1), float32:
+        ``torque_to_action(torque(observation))``, with the check and the conversion in one
+        compiled call (:func:`checked_action`, the same numbers)."""
+        tau = self._step(observation)
+        action = np.empty(self.n, dtype=np.float32)
+        if checked_action(tau, self.torque_limits_nm, action) >= 0:
+            require_finite_torque(tau, self.controller, self.env.t)  # raises, naming the joints
+        self._accept(tau)
+        return action
+
+    def _step(self, observation: np.ndarray) -> FloatArray:
+        """The controller's torque (N·m) for the env's current state, unchecked (the
+        controller is reset first if the env was reset since)."""
+        if self._episode != self.env.episode:
+            self.reset_controller(observation)
+        q, qd = self._state(observation)
+        return self.controller.step(q, qd, self.env.dt)
+
+    def _accept(self, tau: FloatArray) -> None:
+        """Keep a checked torque as the last one (and record it, with ``record``)."""
+        self.last_tau_nm = tau
+        if self.record:
+            self.records.append({"t_s": self.env.t, "tau_nm": tau, **self.last_diagnostics})
 
     def predict(
         self,

@@ -17,6 +17,7 @@ import ptrack_gym  # noqa: F401
 from agents.passivity import PassivityController, PassivityGains
 from agents.passivity_kernel import table_point
 from agents.passivity_tables import PassivityTables
+from agents.policy import checked_action, torque_to_action
 from ptrack_gym.envs.task import TrackingTask
 from ptrack_gym.kernels.linalg import symmetrize_upper
 from ptrack_gym.kernels.task import clip_action
@@ -163,6 +164,22 @@ def test_clip_action_and_symmetrize_equal_numpy() -> None:
     out = np.empty((7, 7))
     symmetrize_upper(upper + np.tril(rng.normal(size=(7, 7)), -1), out)  # lower part ignored
     np.testing.assert_array_equal(out, np.triu(upper) + np.triu(upper, 1).T)
+
+
+def test_checked_action_equals_the_numpy_conversion_and_check() -> None:
+    """The policy adapter's kernel: torque_to_action's action bit for bit (inside and beyond
+    the limits, tiny and huge torques), and the first non-finite entry found like
+    require_finite_torque finds it."""
+    rng = np.random.default_rng(5)
+    limits = np.array([320.0, 176.0, 40.0, 1e-3, 7.5])
+    for scale in (1e-9, 1.0, 100.0, 1e6):
+        tau = rng.normal(size=5) * scale * limits
+        action = np.empty(5, dtype=np.float32)
+        assert checked_action(tau, limits, action) == -1
+        np.testing.assert_array_equal(action, torque_to_action(tau, limits))
+    for bad in (np.nan, np.inf, -np.inf):
+        tau = np.array([1.0, 2.0, bad, np.nan, 0.0])
+        assert checked_action(tau, limits, np.empty(5, dtype=np.float32)) == 2
 
 
 @pytest.mark.parametrize("robot", sorted(ROBOTS))
