@@ -104,7 +104,7 @@ class MultiSinePath:
         """See :meth:`ReferencePath.evaluate`. A scalar s runs the compiled kernel
         (:func:`ptrack_gym.kernels.path.eval_path`); an array of s the numpy formula of the
         class docstring, its readable twin."""
-        if np.ndim(s) == 0:
+        if type(s) is float or np.ndim(s) == 0:  # the type test first: the hot path
             return _eval_scalar(self._kernel, float(s), self.n)
         arg = self._omega_k * np.asarray(s, dtype=np.float64)[:, None, None] + self.phases
         sin, cos = np.sin(arg), np.cos(arg)  # (m, K, n)
@@ -155,7 +155,7 @@ class SplinePath:
         """See :meth:`ReferencePath.evaluate`. A scalar s runs the compiled kernel
         (:func:`ptrack_gym.kernels.path.eval_path`); an array of s scipy's spline, its
         readable twin."""
-        if np.ndim(s) == 0:
+        if type(s) is float or np.ndim(s) == 0:  # the type test first: the hot path
             return _eval_scalar(self._kernel, float(s), self.n)
         sm = np.mod(s, self.period_s)
         return self._q(sm), self._qd(sm), self._qdd(sm)

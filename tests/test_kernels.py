@@ -20,6 +20,7 @@ from agents.passivity_tables import PassivityTables
 from agents.policy import checked_action, torque_to_action
 from ptrack_gym.envs.task import TrackingTask
 from ptrack_gym.kernels.linalg import symmetrize_upper
+from ptrack_gym.kernels.projection import coarse_argmin
 from ptrack_gym.kernels.task import clip_action
 from ptrack_gym.paths import (
     MultiSinePath,
@@ -164,6 +165,33 @@ def test_clip_action_and_symmetrize_equal_numpy() -> None:
     out = np.empty((7, 7))
     symmetrize_upper(upper + np.tril(rng.normal(size=(7, 7)), -1), out)  # lower part ignored
     np.testing.assert_array_equal(out, np.triu(upper) + np.triu(upper, 1).T)
+
+
+@pytest.mark.parametrize("n, n_coarse", [(2, 256), (7, 255), (3, 5), (6, 1)])
+def testcoarse_argmin_is_the_first_minimum_of_an_in_order_scan(n: int, n_coarse: int) -> None:
+    """The four-lane coarse stage picks the node a plain in-order scan picks, ties (repeated
+    nodes) to the lowest index, for any node count (not only multiples of 4)."""
+    rng = np.random.default_rng(n * 1000 + n_coarse)
+
+    def scan(q, nodes, sq):  # v_c by the kernel's operations in its order; first strict min
+        best, i_best = np.inf, 0
+        for c in range(sq.shape[0]):
+            dot = 0.0
+            for j in range(q.shape[0]):
+                dot += nodes[j, c] * q[j]
+            if sq[c] - 2.0 * dot < best:
+                best, i_best = sq[c] - 2.0 * dot, c
+        return i_best
+
+    distinct = rng.normal(size=(n, n_coarse))
+    repeated = np.tile(distinct[:, :3], (1, n_coarse // 3 + 1))[:, :n_coarse].copy()
+    for nodes in (distinct, repeated):
+        sq = np.sum(nodes * nodes, axis=0)
+        for scale in (1e-3, 1.0, 30.0):
+            for _ in range(200):
+                q = rng.normal(size=n) * scale
+                assert coarse_argmin(q, nodes, sq) == scan(q, nodes, sq)
+    assert coarse_argmin(np.full(n, np.nan), distinct, np.sum(distinct**2, axis=0)) == 0
 
 
 def test_checked_action_equals_the_numpy_conversion_and_check() -> None:

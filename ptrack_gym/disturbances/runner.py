@@ -31,8 +31,9 @@ class DisturbanceRunner:
         work_j: ∫ q̇ᵀτ_d since the last reset (J): per sub-step τ_dᵀ(q_{k+1} − q_k), the
             exact work of a torque held over a semi-implicit Euler step.
         last_torque_nm: τ_d of the last physics sub-step (pushes as JᵀF), shape (n,); a
-            new array every control step, never written in place, so it can be handed out
-            (in ``info``) without a copy.
+            new array every control step in which a disturbance acts, one shared read-only
+            zero array in the others; never written in place, so it can be handed out (in
+            ``info``) without a copy.
     """
 
     def __init__(self, items: list[Disturbance], n: int) -> None:
@@ -41,12 +42,16 @@ class DisturbanceRunner:
         self._actors = [
             d for d in self.items if _overrides(d, "joint_torque") or _overrides(d, "wrench")
         ]
+        self._torquers = [d for d in self._actors if _overrides(d, "joint_torque")]
+        self._pushers = [d for d in self._actors if _overrides(d, "wrench")]
         self._actuators = [d for d in self.items if _overrides(d, "actuate")]
         self._sensors = [d for d in self.items if _overrides(d, "sense")]
         self._editors = [d for d in self.items if _overrides(d, "plant")]
         self._acts_ever = bool(self._actors or self._actuators)
         self.work_j = 0.0
-        self.last_torque_nm = np.zeros(n)
+        self._no_torque = np.zeros(n)
+        self._no_torque.flags.writeable = False
+        self.last_torque_nm = self._no_torque
         self._was_reset = False
         self._plant_window = (np.inf, -np.inf)  # [from, until) the applied plant holds
 
@@ -68,7 +73,7 @@ class DisturbanceRunner:
         for d, child in zip(self.items, children, strict=True):
             d.reset(child, ctx)
         self.work_j = 0.0
-        self.last_torque_nm = np.zeros(self.n)
+        self.last_torque_nm = self._no_torque
         self._was_reset = True
         self._plant_window = (np.inf, -np.inf)  # the new schedule is applied at once
 
@@ -148,7 +153,7 @@ class DisturbanceRunner:
         τ_cmd + τ_d; the ledger adds τ_dᵀ(q_{k+1} − q_k).
         """
         if not self.items:  # the common, undisturbed case first
-            self.last_torque_nm = np.zeros(self.n)
+            self.last_torque_nm = self._no_torque
             return arm.run_torque(tau_cmd.tolist(), substeps)
         t0 = first_substep * physics_dt_s
         if self._editors:
@@ -157,29 +162,33 @@ class DisturbanceRunner:
         if not self._acts_ever or (
             not self._actuators and not any(d.acts_during(t0, t1) for d in self._actors)
         ):
-            self.last_torque_nm = np.zeros(self.n)
+            self.last_torque_nm = self._no_torque
             return arm.run_torque(tau_cmd.tolist(), substeps)
         tau_act = tau_cmd
         for d in self._actuators:
             tau_act = d.actuate(tau_act)
         actuation_error = tau_act - tau_cmd
+        torquers, pushers = self._torquers, self._pushers
         for k in range(substeps):
             t_k = (first_substep + k) * physics_dt_s
             tau_d = actuation_error.copy()
-            for d in self._actors:
+            for d in torquers:
                 tau = d.joint_torque(t_k, q, qd)
                 if tau is not None:
                     tau_d += tau
-            arm.apply_torque_list((tau_cmd + tau_d).tolist())
-            for d in self._actors:
-                w = d.wrench(t_k)
-                if w is not None:
-                    link, force = w
-                    arm.apply_link_force(link, force)
-                    tau_d = tau_d + arm.com_jacobian(link, q).T @ force
-            arm.sim.step()
-            q_next, qd = arm.state()
-            if np.all(np.isfinite(q_next)):
+            if pushers:
+                arm.apply_torque_list((tau_cmd + tau_d).tolist())
+                for d in pushers:
+                    w = d.wrench(t_k)
+                    if w is not None:
+                        link, force = w
+                        arm.apply_link_force(link, force)
+                        tau_d = tau_d + arm.com_jacobian(link, q).T @ force
+                arm.sim.step()
+                q_next, qd = arm.state()
+            else:  # the same PyBullet calls: torque, one step, joint states
+                q_next, qd = arm.run_torque((tau_cmd + tau_d).tolist(), 1)
+            if np.isfinite(q_next).all():
                 self.work_j += float(tau_d @ (q_next - q))
             q = q_next
             self.last_torque_nm = tau_d

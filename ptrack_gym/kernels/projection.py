@@ -36,6 +36,55 @@ def nearest(
 
 
 @kernel
+def coarse_argmin(q: FloatArray, coarse_q: FloatArray, coarse_sq: FloatArray) -> int:
+    """Coarse stage of :func:`nearest_into`: the first c minimising v_c = |q_c|² − 2 q_cᵀq
+    over the coarse nodes (``coarse_q`` stored transposed, (n, C); ``coarse_sq`` = |q_c|²),
+    0 if no v_c is below +inf.
+
+    Four interleaved lanes (nodes c ≡ 0, 1, 2, 3 mod 4), each keeping its first strict
+    minimum, then the smallest of them, ties to the lowest index: the same node as one
+    scan ``if v_c < best`` in order, and each v_c by the same operations in the same order
+    (so the same bits) — only faster, the lanes' dot products and comparisons being
+    independent of each other."""
+    n, n_coarse = q.shape[0], coarse_sq.shape[0]
+    m0 = m1 = m2 = m3 = math.inf
+    i0 = i1 = i2 = i3 = -1
+    c = 0
+    while c + 4 <= n_coarse:
+        d0 = d1 = d2 = d3 = 0.0
+        for j in range(n):
+            qj = q[j]
+            d0 += coarse_q[j, c] * qj
+            d1 += coarse_q[j, c + 1] * qj
+            d2 += coarse_q[j, c + 2] * qj
+            d3 += coarse_q[j, c + 3] * qj
+        v0, v1 = coarse_sq[c] - 2.0 * d0, coarse_sq[c + 1] - 2.0 * d1
+        v2, v3 = coarse_sq[c + 2] - 2.0 * d2, coarse_sq[c + 3] - 2.0 * d3
+        if v0 < m0:
+            m0, i0 = v0, c
+        if v1 < m1:
+            m1, i1 = v1, c + 1
+        if v2 < m2:
+            m2, i2 = v2, c + 2
+        if v3 < m3:
+            m3, i3 = v3, c + 3
+        c += 4
+    while c < n_coarse:  # the last C mod 4 nodes, in lane 0 (their indices are the largest)
+        d0 = 0.0
+        for j in range(n):
+            d0 += coarse_q[j, c] * q[j]
+        v0 = coarse_sq[c] - 2.0 * d0
+        if v0 < m0:
+            m0, i0 = v0, c
+        c += 1
+    best, i_best = math.inf, -1
+    for m, i in ((m0, i0), (m1, i1), (m2, i2), (m3, i3)):
+        if i >= 0 and (m < best or (m == best and i < i_best)):
+            best, i_best = m, i
+    return max(i_best, 0)
+
+
+@kernel
 def nearest_into(
     q: FloatArray,
     grid_s: FloatArray,
@@ -59,18 +108,7 @@ def nearest_into(
     ``e0`` (n,) is scratch.
     """
     n_grid, n = grid_q.shape
-    # Coarse stage: argmin over every stride-th node of |q_i|² − 2 q_iᵀq (coarse_q is
-    # stored transposed, (n, C), so the inner loop runs over contiguous nodes).
-    n_coarse = coarse_sq.shape[0]
-    best, i_best = math.inf, 0
-    for c in range(n_coarse):
-        dot = 0.0
-        for j in range(n):
-            dot += coarse_q[j, c] * q[j]
-        v = coarse_sq[c] - 2.0 * dot
-        if v < best:
-            best, i_best = v, c
-    i = i_best * stride
+    i = coarse_argmin(q, coarse_q, coarse_sq) * stride
     # Fine stage: the 2·stride + 1 nodes around it (the wrapped grid starts stride early).
     node_d2, k_best = math.inf, 0
     for k in range(2 * stride + 1):
