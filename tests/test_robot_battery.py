@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import warnings
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env as gymnasium_check_env
@@ -63,6 +64,23 @@ def test_gymnasium_and_sb3_checkers_pass_without_warnings(make_env, robot_name: 
         warnings.simplefilter("always")
         gymnasium_check_env(env.unwrapped)
         sb3_checker.check_env(env.unwrapped)
+    assert [f"{w.category.__name__}: {w.message}" for w in caught] == []
+
+
+@pytest.mark.parametrize("disturbance", [None, "periodic"])
+def test_gym_make_steps_without_passive_checker_warnings(robot_name: str, disturbance) -> None:
+    """Stepping through gym.make's PassiveEnvChecker warns about nothing — in particular no
+    info shares an object with the one before (Gymnasium asks for new info data on every
+    call), whether a disturbance acts or not."""
+    env = gym.make(robot_profile(robot_name).env_id, disturbance=disturbance)
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            env.reset(seed=0)
+            for _ in range(3):
+                env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+    finally:
+        env.close()
     assert [f"{w.category.__name__}: {w.message}" for w in caught] == []
 
 

@@ -31,9 +31,8 @@ class DisturbanceRunner:
         work_j: ∫ q̇ᵀτ_d since the last reset (J): per sub-step τ_dᵀ(q_{k+1} − q_k), the
             exact work of a torque held over a semi-implicit Euler step.
         last_torque_nm: τ_d of the last physics sub-step (pushes as JᵀF), shape (n,); a
-            new array every control step in which a disturbance acts, one shared read-only
-            zero array in the others; never written in place, so it can be handed out (in
-            ``info``) without a copy.
+            new array every control step (Gymnasium: an info never shares an object with
+            the last), never written in place, so it can be handed out without a copy.
     """
 
     def __init__(self, items: list[Disturbance], n: int) -> None:
@@ -49,9 +48,7 @@ class DisturbanceRunner:
         self._editors = [d for d in self.items if _overrides(d, "plant")]
         self._acts_ever = bool(self._actors or self._actuators)
         self.work_j = 0.0
-        self._no_torque = np.zeros(n)
-        self._no_torque.flags.writeable = False
-        self.last_torque_nm = self._no_torque
+        self.last_torque_nm = np.zeros(n)
         self._was_reset = False
         self._plant_window = (np.inf, -np.inf)  # [from, until) the applied plant holds
 
@@ -73,7 +70,7 @@ class DisturbanceRunner:
         for d, child in zip(self.items, children, strict=True):
             d.reset(child, ctx)
         self.work_j = 0.0
-        self.last_torque_nm = self._no_torque
+        self.last_torque_nm = np.zeros(self.n)
         self._was_reset = True
         self._plant_window = (np.inf, -np.inf)  # the new schedule is applied at once
 
@@ -153,7 +150,7 @@ class DisturbanceRunner:
         τ_cmd + τ_d; the ledger adds τ_dᵀ(q_{k+1} − q_k).
         """
         if not self.items:  # the common, undisturbed case first
-            self.last_torque_nm = self._no_torque
+            self.last_torque_nm = np.zeros(self.n)
             return arm.run_torque(tau_cmd.tolist(), substeps)
         t0 = first_substep * physics_dt_s
         if self._editors:
@@ -162,7 +159,7 @@ class DisturbanceRunner:
         if not self._acts_ever or (
             not self._actuators and not any(d.acts_during(t0, t1) for d in self._actors)
         ):
-            self.last_torque_nm = self._no_torque
+            self.last_torque_nm = np.zeros(self.n)
             return arm.run_torque(tau_cmd.tolist(), substeps)
         tau_act = tau_cmd
         for d in self._actuators:
