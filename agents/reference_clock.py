@@ -15,6 +15,7 @@ import numpy as np
 
 from agents.base import FeatureBlock, FloatArray
 from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.kernels.path import path_tables, reference_errors
 from ptrack_gym.paths import ReferencePath
 from ptrack_gym.robots.model import RobotModel
 
@@ -40,7 +41,10 @@ class ReferenceClock:
         if path.n != model.n:
             raise InvalidConfigError(f"path has {path.n} joints, model has {model.n}")
         self.path = path
+        self.n = path.n
         self.s: float | None = None
+        kernel_data = getattr(path, "kernel_data", None)  # the package's paths have one
+        self._tables = path_tables(kernel_data()) if kernel_data is not None else None
 
     def reset(self, s_ref: float) -> None:
         """Start the clock at s = ``s_ref`` (s)."""
@@ -53,6 +57,16 @@ class ReferenceClock:
             raise RuntimeError("call reset() before step()")
         if not (math.isfinite(dt) and dt > 0.0):
             raise InvalidConfigError(f"dt must be a positive number of seconds, got {dt!r}")
+        if self._tables is None:
+            return self.errors_numpy(q, qd)
+        out = np.empty((5, self.n))  # the compiled twin of errors_numpy: one call, one array
+        reference_errors(*self._tables, self.s, q, qd, out)
+        return ReferenceErrors(*out)
+
+    def errors_numpy(self, q: FloatArray, qd: FloatArray) -> ReferenceErrors:
+        """The readable reference of :meth:`errors` (any path): (q_r, q_r', q_r'') =
+        ``path.evaluate(s)``, e = q_r − q, ė = q_r' − q̇."""
+        assert self.s is not None
         q_r, qd_r, qdd_r = self.path.evaluate(self.s)
         return ReferenceErrors(q_r, qd_r, qdd_r, q_r - q, qd_r - qd)
 

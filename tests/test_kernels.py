@@ -18,6 +18,7 @@ from agents.passivity import PassivityController, PassivityGains
 from agents.passivity_kernel import table_point
 from agents.passivity_tables import PassivityTables
 from agents.policy import checked_action, torque_to_action
+from agents.reference_clock import ReferenceClock
 from ptrack_gym.envs.task import TrackingTask
 from ptrack_gym.kernels.linalg import symmetrize_upper
 from ptrack_gym.kernels.projection import coarse_argmin
@@ -63,6 +64,26 @@ def test_path_kernel_equals_the_numpy_evaluation(robot: str) -> None:
         for i, si in enumerate(s):
             for kernel_value, numpy_value in zip(path.evaluate(float(si)), batch, strict=True):
                 assert rel(kernel_value, numpy_value[i]) <= TOL
+
+
+@pytest.mark.parametrize("robot", sorted(ROBOTS))
+def test_reference_clock_kernel_equals_its_numpy_twin(robot: str) -> None:
+    """ReferenceClock.errors (one compiled call) gives errors_numpy's reference and errors
+    bit for bit, and the reference is the path's numpy evaluation (to TOL)."""
+    model = PinocchioModel(robot_profile(robot))
+    rng = np.random.default_rng(7)
+    for path in paths_of(robot):
+        clock = ReferenceClock(model, path)
+        for s in rng.uniform(-path.period_s, 2 * path.period_s, 50):
+            clock.reset(float(s))
+            q, qd = rng.normal(size=path.n), rng.normal(size=path.n) * 3.0
+            fast, slow = clock.errors(q, qd, 1e-3), clock.errors_numpy(q, qd)
+            for a, b in zip(fast, slow, strict=True):
+                np.testing.assert_array_equal(a, b)
+            reference = path.evaluate(np.array([s]))
+            for a, b in zip(fast[:3], reference, strict=True):
+                assert rel(a, b[0]) <= TOL
+            assert rel(fast.e, reference[0][0] - q) <= TOL
 
 
 @pytest.mark.parametrize("robot", sorted(ROBOTS))

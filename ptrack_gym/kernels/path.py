@@ -13,7 +13,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from ptrack_gym.kernels import kernel
+from ptrack_gym.kernels import kernel, pack, view1, view2, view3
 
 FloatArray = NDArray[np.float64]
 
@@ -124,3 +124,42 @@ def eval_path(
             q[j] = ((c0 * x + c1) * x + c2) * x + c3
             qd[j] = (3.0 * c0 * x + 2.0 * c1) * x + c2
             qdd[j] = 6.0 * c0 * x + 2.0 * c1
+
+
+def path_tables(data: PathKernelData) -> tuple[FloatArray, NDArray[np.int64]]:
+    """A path's kernel data packed (:func:`ptrack_gym.kernels.pack`) for
+    :func:`reference_errors`: (kind, period), then its six arrays in field order."""
+    return pack(
+        [
+            np.array([float(data.kind), data.period_s]),
+            data.center,
+            data.amp,
+            data.phase,
+            data.omega,
+            data.knots,
+            data.coeffs,
+        ]
+    )
+
+
+@kernel
+def reference_errors(
+    flat: FloatArray,
+    layout: NDArray[np.int64],
+    s: float,
+    q: FloatArray,
+    qd: FloatArray,
+    out: FloatArray,
+) -> None:
+    """Rows of ``out`` (5, n): q_r(s), q_r'(s), q_r''(s) and the errors e = q_r(s) − q,
+    ė = q_r'(s) − q̇ (rad, rad/s, rad/s²), the path from :func:`path_tables`. Twin:
+    ``ReferenceClock.errors_numpy`` (``path.evaluate(s)`` and two subtractions)."""
+    params = view1(flat, layout, 0)
+    eval_path(
+        int(params[0]), params[1], view1(flat, layout, 1), view2(flat, layout, 2),
+        view2(flat, layout, 3), view1(flat, layout, 4), view1(flat, layout, 5),
+        view3(flat, layout, 6), s, out[0], out[1], out[2],
+    )  # fmt: skip
+    for j in range(q.shape[0]):
+        out[3, j] = out[0, j] - q[j]
+        out[4, j] = out[1, j] - qd[j]
