@@ -118,9 +118,16 @@ def test_resume_completes_without_duplicates(full_run, tmp_path) -> None:
     pd.testing.assert_frame_equal(numbers(out / "episodes.csv"), numbers(full_run / "episodes.csv"))
 
 
-def test_two_workers_give_the_same_numbers(full_run, tmp_path) -> None:
+def test_two_workers_give_the_same_numbers_and_figures(full_run, tmp_path) -> None:
+    """workers=2 (the plots drawn by the spawned worker while this process writes the
+    report): the same rows, summary and report, and byte-identical figures."""
     out = run_sweep(tiny(tmp_path, "two", "workers=2"), progress=False)
     pd.testing.assert_frame_equal(numbers(out / "episodes.csv"), numbers(full_run / "episodes.csv"))
+    figures = sorted(p.name for p in full_run.glob("*.png"))
+    assert "robustness_path_dist_rms.png" in figures and "example_passivity.png" in figures
+    assert sorted(p.name for p in out.glob("*.png")) == figures
+    for name in [*figures, "summary.csv", "report.md"]:
+        assert (out / name).read_bytes() == (full_run / name).read_bytes(), name
 
 
 def test_two_runners_share_the_tasks_and_a_failed_episode_stops_the_sweep(tmp_path) -> None:

@@ -96,3 +96,11 @@ def example_plot(trace: dict[str, np.ndarray], title: str, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def example_plot_file(trace_path: Path, title: str, path: Path) -> None:
+    """:func:`example_plot` of a trace saved by the sweep (``trace_<controller>.npz``): what
+    a worker process draws, given file names instead of arrays."""
+    with np.load(trace_path) as z:
+        trace = {k: z[k] for k in z.files}
+    example_plot(trace, title, path)

@@ -14,7 +14,7 @@ import os
 import shlex
 import sys
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import (
     FIRST_COMPLETED,
     Future,
@@ -50,10 +50,25 @@ if TYPE_CHECKING:
 _ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
+def _spawn_pool(processes: int) -> ProcessPoolExecutor:
+    """``processes`` spawned worker processes (one thread each: the thread-count variables
+    are set to 1 unless the user set them); they start on the first task."""
+    import multiprocessing as mp
+
+    for name in _ONE_THREAD:
+        os.environ.setdefault(name, "1")
+    return ProcessPoolExecutor(processes, mp_context=mp.get_context("spawn"))
+
+
 def _run_processes(
-    tasks: list[Task], settings: EpisodeSettings, workers: int, example: set[Task]
+    tasks: list[Task],
+    settings: EpisodeSettings,
+    workers: int,
+    example: set[Task],
+    pool: ProcessPoolExecutor | None = None,
 ) -> Iterator[tuple[dict[str, Any], Any, Task]]:
-    """Run ``tasks`` on ``workers`` processes: this one and ``workers − 1`` spawned ones.
+    """Run ``tasks`` on ``workers`` processes: this one and ``workers − 1`` spawned ones
+    (``pool``'s, if given — the caller then shuts it down — else a pool of its own).
 
     This process runs episodes too (in a thread, while its main thread hands out tasks and
     collects results), so it starts at once while the spawned workers import; every
@@ -65,12 +80,9 @@ def _run_processes(
             row, trace = run_episode(task, settings, task in example)
             yield row, trace, task
         return
-    import multiprocessing as mp
-
-    for name in _ONE_THREAD:
-        os.environ.setdefault(name, "1")
-    ctx = mp.get_context("spawn")  # no PyBullet client or thread is inherited
-    pool = ProcessPoolExecutor(workers - 1, mp_context=ctx)
+    own_pool = pool is None
+    if pool is None:
+        pool = _spawn_pool(workers - 1)  # spawned: no PyBullet client or thread is inherited
     local = ThreadPoolExecutor(1, thread_name_prefix="episodes")
     todo = deque(tasks)
     pending: dict[Future[tuple[dict[str, Any], Any]], tuple[Task, bool]] = {}
@@ -97,7 +109,10 @@ def _run_processes(
                 yield row, trace, task
     finally:  # ...and the queued ones are cancelled, not run for nothing
         todo.clear()
-        pool.shutdown(wait=True, cancel_futures=True)
+        for fut in pending:
+            fut.cancel()
+        if own_pool:
+            pool.shutdown(wait=True, cancel_futures=True)
         local.shutdown(wait=True, cancel_futures=True)
 
 
@@ -160,24 +175,29 @@ def run_sweep(
     }
     workers = cfg.workers or len(os.sched_getaffinity(0))
     settings = cfg.settings()
-    writer = EpisodeWriter(episodes)
-    traces: dict[str, Any] = {}
+    # The spawned workers outlive the episodes: they draw the plots while this process
+    # writes the report.
+    pool = _spawn_pool(workers - 1) if cfg.backend == "process" and workers > 1 else None
     try:
-        runner = (
-            _run_ray(tasks, settings, workers, cfg.ray_address, example)
-            if cfg.backend == "ray"
-            else _run_processes(tasks, settings, workers, example)
-        )
-        for row, trace, task in tqdm(
-            runner, total=len(tasks), disable=not progress, desc="episodes"
-        ):
-            writer.write(row)
-            if trace is not None:
-                np.savez_compressed(out / f"trace_{label(task.controller)}.npz", **trace)
-                traces[task.controller] = trace
+        writer = EpisodeWriter(episodes)
+        try:
+            runner = (
+                _run_ray(tasks, settings, workers, cfg.ray_address, example)
+                if cfg.backend == "ray"
+                else _run_processes(tasks, settings, workers, example, pool)
+            )
+            for row, trace, task in tqdm(
+                runner, total=len(tasks), disable=not progress, desc="episodes"
+            ):
+                writer.write(row)
+                if trace is not None:
+                    np.savez_compressed(out / f"trace_{label(task.controller)}.npz", **trace)
+        finally:
+            writer.close()
+        _finish(cfg, out, show, pool)
     finally:
-        writer.close()
-    _finish(cfg, out, show)
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
     return out
 
 
@@ -211,37 +231,48 @@ def _example_condition(cfg: EvalConfig) -> tuple[str, float, int, int]:
     return (disturbed[0], float(levels[len(levels) // 2]), 0, 0)
 
 
-def _finish(cfg: EvalConfig, out: Path, show: bool = True) -> None:
+def _finish(
+    cfg: EvalConfig, out: Path, show: bool = True, pool: ProcessPoolExecutor | None = None
+) -> None:
+    """Summary, report, plots and video of the sweep in ``out``. With a ``pool``, its
+    processes draw the plots while this one writes the summary and the report (the same
+    files: each plot is a function of the results alone)."""
     df = load_frame(out / "episodes.csv")
     wanted = {t.key() for t in cfg.tasks()}
     keys = df[["controller", "disturbance", "level", "seed", "episode"]].astype(str)
     keys["level"] = df["level"].map(lambda v: f"{v:g}")
     df = df[[tuple(r) in wanted for r in keys.itertuples(index=False)]]
+    plots: list[Future[None]] = []
+
+    def draw(fn: Callable[..., None], *args: Any) -> None:
+        if pool is None:
+            fn(*args)
+        else:
+            plots.append(pool.submit(fn, *args))
+
+    if cfg.plots:
+        from train.plots import example_plot_file, failure_plot, robustness_plot
+
+        draw(failure_plot, df, out / "failures.png")
+        cond = _example_condition(cfg)
+        for ctrl in cfg.controllers:
+            path = out / f"trace_{label(ctrl)}.npz"
+            if path.exists():
+                title = f"{ctrl}: {cond[0]} level {cond[1]:g}, seed 0"
+                draw(example_plot_file, path, title, out / f"example_{label(ctrl)}.png")
     summary = summarize(df, cfg.metric, cfg.reference, cfg.bootstrap_resamples)
     summary.to_csv(out / "summary.csv", index=False, float_format="%.17g")
     table = format_table(summary, cfg.metric)
     (out / "summary.md").write_text(table + "\n")
+    if cfg.plots:
+        draw(robustness_plot, summary, cfg.metric, out / f"robustness_{cfg.metric}.png")
     from train.report import write_report
 
     write_report(df, out, cfg.metric, cfg.reference, cfg.worst_case, title=cfg.env_id)
     if show:
         print(table)
-    if cfg.plots:
-        from train.plots import example_plot, failure_plot, robustness_plot
-
-        robustness_plot(summary, cfg.metric, out / f"robustness_{cfg.metric}.png")
-        failure_plot(df, out / "failures.png")
-        cond = _example_condition(cfg)
-        for ctrl in cfg.controllers:
-            path = out / f"trace_{label(ctrl)}.npz"
-            if path.exists():
-                with np.load(path) as z:
-                    trace = {k: z[k] for k in z.files}
-                example_plot(
-                    trace,
-                    f"{ctrl}: {cond[0]} level {cond[1]:g}, seed 0",
-                    out / f"example_{label(ctrl)}.png",
-                )
+    for fut in plots:
+        fut.result()  # a failed plot raises here
     if cfg.video:
         from train.video import record_episode
 
