@@ -159,7 +159,8 @@ def episode_metrics(
     ratio = speed_ratio(model, path, q[k0:], qd[k0:], s_star[k0:])
     offset = phase_offset(s_star[k0:], record.s_ref[k0:], path.period_s)
     frac = np.abs(record.tau_nm) / record.torque_limits_nm
-    gravity = np.array([model.gravity(qk) for qk in q])
+    many = getattr(model, "gravity_many", None)  # a batch evaluation, where the model has one
+    gravity = many(q) if many is not None else np.array([model.gravity(qk) for qk in q])
     dyn_frac = (record.tau_nm - gravity) / record.torque_limits_nm
     dq = np.diff(q, axis=0)
     work = float(np.sum(record.tau_nm[1:] * dq)) if len(q) > 1 else 0.0

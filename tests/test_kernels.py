@@ -296,6 +296,10 @@ def test_batch_metric_equals_the_mass_matrix_quadratic_form(robot: str) -> None:
     v = rng.normal(0.0, 1.0, (40, profile.n))
     expected = np.array([vk @ model.mass_matrix(qk) @ vk for qk, vk in zip(q, v, strict=True)])
     assert rel(model.metric_norms2(q, v), expected) <= TOL
+    with pytest.raises(ValueError, match="same shape"):
+        model.metric_norms2(q, v[:-1])
+    # The batch gravity is the per-row gravity, bit for bit.
+    np.testing.assert_array_equal(model.gravity_many(q), np.array([model.gravity(qk) for qk in q]))
 
 
 @pytest.mark.parametrize("robot", ["two_link", "iiwa"])

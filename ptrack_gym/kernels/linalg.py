@@ -32,3 +32,13 @@ def quadratic_form_upper(upper: FloatArray, v: FloatArray) -> float:
         for j in range(i + 1, n):
             acc += 2.0 * upper[i, j] * v[i] * v[j]
     return acc
+
+
+@kernel
+def quadratic_forms_upper(uppers: FloatArray, v: FloatArray) -> FloatArray:
+    """v_kᵀ M_k v_k for every k: :func:`quadratic_form_upper` of ``uppers[k]`` (T, n, n) and
+    ``v[k]`` (T, n), in one call."""
+    out = np.empty(v.shape[0])
+    for k in range(v.shape[0]):
+        out[k] = quadratic_form_upper(uppers[k], v[k])
+    return out

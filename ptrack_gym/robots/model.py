@@ -22,7 +22,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from ptrack_gym.kernels.linalg import quadratic_form_upper, symmetrize_upper
+from ptrack_gym.kernels.linalg import quadratic_forms_upper, symmetrize_upper
 from ptrack_gym.robots.profile import FloatArray, RobotProfile
 
 
@@ -152,13 +152,23 @@ class PinocchioModel:
         one CRBA per row, bypassing the one-entry cache (for whole trajectories)."""
         q = np.ascontiguousarray(q, dtype=np.float64)
         v = np.ascontiguousarray(v, dtype=np.float64)
+        if q.shape != v.shape:
+            raise ValueError(f"q and v must have the same shape, got {q.shape} and {v.shape}")
         pin, model, data = self._pin, self._model, self._data
-        return np.array(
-            [
-                quadratic_form_upper(pin.crba(model, data, qk), vk)
-                for qk, vk in zip(q, v, strict=True)
-            ]
-        )
+        uppers = np.empty((q.shape[0], self.n, self.n))
+        for k, qk in enumerate(q):
+            uppers[k] = pin.crba(model, data, qk)  # upper triangle filled (the rest unread)
+        return quadratic_forms_upper(uppers, v)
+
+    def gravity_many(self, q: FloatArray) -> FloatArray:
+        """g(q_k) (N·m) for every row k of q (T, n): :meth:`gravity` of each row, in one
+        loop (for whole trajectories)."""
+        q = np.ascontiguousarray(q, dtype=np.float64)
+        pin, model, data = self._pin, self._model, self._data
+        out = np.empty_like(q)
+        for k, qk in enumerate(q):
+            out[k] = pin.computeGeneralizedGravity(model, data, qk)
+        return out
 
     def close(self) -> None:
         """Nothing to release (for symmetry with :class:`BulletModel`)."""
