@@ -9,6 +9,7 @@ without any of that bookkeeping (the result is the same: τ_d = 0).
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -46,7 +47,6 @@ class DisturbanceRunner:
         self._actuators = [d for d in self.items if _overrides(d, "actuate")]
         self._sensors = [d for d in self.items if _overrides(d, "sense")]
         self._editors = [d for d in self.items if _overrides(d, "plant")]
-        self._acts_ever = bool(self._actors or self._actuators)
         self.work_j = 0.0
         self.last_torque_nm = np.zeros(n)
         self._was_reset = False
@@ -117,6 +117,13 @@ class DisturbanceRunner:
         arm.set_mass_changes({k: (v.scale, v.added_kg) for k, v in self.plant(t_s).items()})
         self._plant_window = self._plant_interval(t_s)
 
+    def _acting(self, t0_s: float, t1_s: float) -> bool:
+        """Whether a joint torque or a push may act in [t0, t1) (s)."""
+        for d in self._actors:
+            if d.acts_during(t0_s, t1_s):
+                return True
+        return False
+
     def _plant_interval(self, t_s: float) -> tuple[float, float]:
         """[from, until) around ``t_s`` in which no editor changes the plant; empty when
         one may change it at any time."""
@@ -156,9 +163,7 @@ class DisturbanceRunner:
         if self._editors:
             self.apply_plant(arm, t0)
         t1 = (first_substep + substeps) * physics_dt_s
-        if not self._acts_ever or (
-            not self._actuators and not any(d.acts_during(t0, t1) for d in self._actors)
-        ):
+        if not self._actuators and not self._acting(t0, t1):
             self.last_torque_nm = np.zeros(self.n)
             return arm.run_torque(tau_cmd.tolist(), substeps)
         tau_act = tau_cmd
@@ -185,8 +190,11 @@ class DisturbanceRunner:
                 q_next, qd = arm.state()
             else:  # the same PyBullet calls: torque, one step, joint states
                 q_next, qd = arm.run_torque((tau_cmd + tau_d).tolist(), 1)
-            if np.isfinite(q_next).all():
-                self.work_j += float(tau_d @ (q_next - q))
+            w = float(tau_d @ (q_next - q))
+            # Only a finite state counts; a finite w implies one (a non-finite q_next makes
+            # a term inf or NaN), so the full check runs only when w is not finite.
+            if math.isfinite(w) or np.isfinite(q_next).all():
+                self.work_j += w
             q = q_next
             self.last_torque_nm = tau_d
         return q, qd
