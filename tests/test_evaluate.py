@@ -17,7 +17,7 @@ from agents.registry import make_controller
 from ptrack_gym.errors import InvalidConfigError
 from train.evaluate import load_config, main
 from train.results import COLUMNS, CorruptResultsError, read_episodes
-from train.sweep import _run_processes, run_sweep
+from train.sweep import _finish, _run_processes, run_sweep
 
 TINY = [
     "env_id=ptrack_gym/TwoLinkTrack-v0",
@@ -141,6 +141,34 @@ def test_two_runners_share_the_tasks_and_a_failed_episode_stops_the_sweep(tmp_pa
     bad = dataclasses.replace(tasks[1], controller="no_such_controller")
     with pytest.raises(InvalidConfigError, match="no_such_controller"):
         list(_run_processes([tasks[0], bad, *tasks[2:]], settings, 2, set()))
+
+
+def test_summary_and_report_do_not_depend_on_the_order_episodes_finished(
+    full_run, tmp_path
+) -> None:
+    """episodes.csv holds rows in the order they finished, which parallel runners change
+    from run to run: the bootstrap intervals of the summary and the report must not. Six
+    seeds (the tiny sweep's rows copied with other seeds and metric values), written once
+    sorted and once shuffled, give byte-identical summaries and reports."""
+    rng = np.random.default_rng(0)
+    base = pd.read_csv(full_run / "episodes.csv")
+    copies = []
+    for k in range(3):
+        c = base.copy()
+        c["seed"] += 2 * k
+        c["path_dist_rms"] *= rng.uniform(0.5, 2.0, len(c))
+        copies.append(c)
+    rows = pd.concat(copies, ignore_index=True).sort_values(
+        ["controller", "disturbance", "level", "seed", "episode"]
+    )
+    outputs = {}
+    for name, frame in (("sorted", rows), ("shuffled", rows.sample(frac=1.0, random_state=1))):
+        folder = tmp_path / name
+        folder.mkdir()
+        frame.to_csv(folder / "episodes.csv", index=False, float_format="%.17g", na_rep="nan")
+        _finish(tiny(tmp_path, name, "seeds=6", "plots=false"), folder, show=False)
+        outputs[name] = {f: (folder / f).read_bytes() for f in ("summary.csv", "report.md")}
+    assert outputs["sorted"] == outputs["shuffled"]
 
 
 def test_ray_backend_gives_the_same_rows(full_run, tmp_path) -> None:

@@ -97,13 +97,16 @@ def _fmt(value: Any) -> str:
 
 
 def load_frame(path: Path) -> pd.DataFrame:
-    """``episodes.csv`` as a DataFrame with numeric metric columns."""
+    """``episodes.csv`` as a DataFrame with numeric metric columns, its rows sorted by
+    their key (controller, disturbance, level, seed, episode): the file holds them in the
+    order they finished, which parallel runners change from run to run, and the bootstrap
+    intervals computed from the frame must not depend on it."""
     df = pd.DataFrame(read_episodes(path), columns=list(COLUMNS))
     for col in (*METRIC_NAMES, "wall_s", "level"):
         df[col] = df[col].astype(float)  # parses "nan" and repr() floats exactly
     for col in ("steps", "seed", "episode"):
         df[col] = df[col].astype(int)
-    return df
+    return df.sort_values(list(KEY_COLUMNS), kind="stable").reset_index(drop=True)
 
 
 def iqm(x: np.ndarray, axis: int = -1) -> np.ndarray:
