@@ -178,6 +178,7 @@ def run_sweep(
     # The spawned workers outlive the episodes: they draw the plots while this process
     # writes the report.
     pool = _spawn_pool(workers - 1) if cfg.backend == "process" and workers > 1 else None
+    drawn: dict[str, Future[None]] = {}  # example figures already handed to the pool
     try:
         writer = EpisodeWriter(episodes)
         try:
@@ -191,10 +192,15 @@ def run_sweep(
             ):
                 writer.write(row)
                 if trace is not None:
-                    np.savez_compressed(out / f"trace_{label(task.controller)}.npz", **trace)
+                    path = out / f"trace_{label(task.controller)}.npz"
+                    np.savez_compressed(path, **trace)
+                    if cfg.plots and pool is not None:  # drawn now, among the episodes
+                        drawn[task.controller] = pool.submit(
+                            *_example_figure(cfg, out, task.controller)
+                        )
         finally:
             writer.close()
-        _finish(cfg, out, show, pool)
+        _finish(cfg, out, show, pool, drawn)
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
@@ -231,12 +237,32 @@ def _example_condition(cfg: EvalConfig) -> tuple[str, float, int, int]:
     return (disturbed[0], float(levels[len(levels) // 2]), 0, 0)
 
 
+def _example_figure(
+    cfg: EvalConfig, out: Path, controller: str
+) -> tuple[Callable[..., None], Path, str, Path]:
+    """(draw, trace file, title, figure file) of ``controller``'s example episode."""
+    from train.plots import example_plot_file
+
+    cond = _example_condition(cfg)
+    return (
+        example_plot_file,
+        out / f"trace_{label(controller)}.npz",
+        f"{controller}: {cond[0]} level {cond[1]:g}, seed 0",
+        out / f"example_{label(controller)}.png",
+    )
+
+
 def _finish(
-    cfg: EvalConfig, out: Path, show: bool = True, pool: ProcessPoolExecutor | None = None
+    cfg: EvalConfig,
+    out: Path,
+    show: bool = True,
+    pool: ProcessPoolExecutor | None = None,
+    drawn: dict[str, Future[None]] | None = None,
 ) -> None:
     """Summary, report, plots and video of the sweep in ``out``. With a ``pool``, its
     processes draw the plots while this one writes the summary and the report (the same
-    files: each plot is a function of the results alone)."""
+    files: each plot is a function of the results alone); ``drawn`` holds the example
+    figures handed to it already, as their episodes finished."""
     df = load_frame(out / "episodes.csv")
     wanted = {t.key() for t in cfg.tasks()}
     keys = df[["controller", "disturbance", "level", "seed", "episode"]].astype(str)
@@ -251,15 +277,14 @@ def _finish(
             plots.append(pool.submit(fn, *args))
 
     if cfg.plots:
-        from train.plots import example_plot_file, failure_plot, robustness_plot
+        from train.plots import failure_plot, robustness_plot
 
         draw(failure_plot, df, out / "failures.png")
-        cond = _example_condition(cfg)
         for ctrl in cfg.controllers:
-            path = out / f"trace_{label(ctrl)}.npz"
-            if path.exists():
-                title = f"{ctrl}: {cond[0]} level {cond[1]:g}, seed 0"
-                draw(example_plot_file, path, title, out / f"example_{label(ctrl)}.png")
+            if drawn and ctrl in drawn:
+                plots.append(drawn[ctrl])
+            elif (out / f"trace_{label(ctrl)}.npz").exists():  # e.g. from before a resume
+                draw(*_example_figure(cfg, out, ctrl))
     summary = summarize(df, cfg.metric, cfg.reference, cfg.bootstrap_resamples)
     summary.to_csv(out / "summary.csv", index=False, float_format="%.17g")
     table = format_table(summary, cfg.metric)
