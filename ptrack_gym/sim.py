@@ -27,6 +27,7 @@ import math
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
+from operator import itemgetter
 
 import numpy as np
 import pybullet as p
@@ -44,6 +45,20 @@ def _disconnect(client_id: int) -> None:
             p.disconnect(physicsClientId=client_id)
     except p.error:  # pragma: no cover - interpreter shutdown
         pass
+
+
+_POSITION, _VELOCITY = itemgetter(0), itemgetter(1)
+
+
+def _positions_velocities(
+    states: Sequence[tuple[float, ...]], n: int
+) -> tuple[FloatArray, FloatArray]:
+    """(q, q̇) as two float64 arrays from ``getJointStates``'s tuples (position, velocity,
+    reaction wrench, applied torque): ``np.fromiter`` over the first two entries, the
+    quickest conversion measured for 2–7 joints."""
+    return np.fromiter(map(_POSITION, states), np.float64, n), np.fromiter(
+        map(_VELOCITY, states), np.float64, n
+    )
 
 
 class BulletSim:
@@ -268,7 +283,7 @@ class BulletArm:
         """Joint positions (rad) and velocities (rad/s), each of shape (n,)."""
         cid = self.sim._require_connected()
         states = p.getJointStates(self.body_id, self.joint_indices, physicsClientId=cid)
-        return np.array([s[0] for s in states]), np.array([s[1] for s in states])
+        return _positions_velocities(states, self.n)
 
     def clip_torque(self, tau_nm: FloatArray) -> FloatArray:
         """Clip joint torques (N·m) to ±``torque_limits_nm`` (PyBullet does not)."""
@@ -307,7 +322,7 @@ class BulletArm:
             p.setJointMotorControlArray(body, joints, mode, forces=forces_nm, physicsClientId=cid)
             p.stepSimulation(physicsClientId=cid)
         states = p.getJointStates(body, joints, physicsClientId=cid)
-        return np.array([s[0] for s in states]), np.array([s[1] for s in states])
+        return _positions_velocities(states, self.n)
 
     # -- plant editing (disturbances) ----------------------------------------------
     def set_mass_changes(self, changes: dict[str, tuple[float, float]]) -> None:
