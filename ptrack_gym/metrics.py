@@ -76,6 +76,10 @@ def recovery_time(
     return float(t[last + 1] - t_end_s)
 
 
+#: The per-step series of an :class:`EpisodeRecord` (optional ones may be None).
+_PER_STEP = ("t_s", "q", "qd", "s_ref", "tau_nm", "path_distance", "path_s", "tracking_error")
+
+
 @dataclass(frozen=True)
 class EpisodeRecord:
     """What one episode recorded, one row per control step k (state after step k)."""
@@ -92,6 +96,7 @@ class EpisodeRecord:
     intended_steps: int | None = None  # the episode's full length, for unstable episodes
     path_distance: FloatArray | None = None  # (T,) info["path_distance"], if recorded (rad)
     path_s: FloatArray | None = None  # (T,) info["path_s"], the nearest s, if recorded (s)
+    tracking_error: FloatArray | None = None  # (T,) info["tracking_error"], if recorded (rad)
 
 
 def episode_metrics(
@@ -122,15 +127,15 @@ def episode_metrics(
     that row is dropped and both error series are padded with ``failure_distance_rad`` up
     to ``intended_steps``, so blowing up never scores better than staying near the path.
 
-    The path distances and nearest s are the record's (the env's info) when it has them,
-    otherwise computed by ``projector``.
+    The path distances, nearest s and time-indexed errors are the record's (the env's info)
+    when it has them, otherwise computed by ``projector`` and the path.
     """
     if record.unstable and len(record.q) > 1:
         record = dataclasses.replace(
             record,
             **{
                 name: getattr(record, name)[:-1]
-                for name in ("t_s", "q", "qd", "s_ref", "tau_nm", "path_distance", "path_s")
+                for name in _PER_STEP
                 if getattr(record, name) is not None
             },
         )
@@ -149,8 +154,10 @@ def episode_metrics(
     else:
         dist, s_star = path_distances(projector, q)
     path = projector.path
-    q_ref = path.evaluate(record.s_ref)[0]
-    time_err = np.linalg.norm(q_ref - q, axis=1)
+    if record.tracking_error is not None:
+        time_err = np.asarray(record.tracking_error, dtype=np.float64)
+    else:
+        time_err = np.linalg.norm(path.evaluate(record.s_ref)[0] - q, axis=1)
     if record.unstable:
         missing = max((record.intended_steps or len(q)) - len(q), 1)
         pad = np.full(missing, failure_distance_rad)

@@ -15,6 +15,7 @@ import pytest
 import ptrack_gym  # noqa: F401
 from agents import CONTROLLER_NAMES, ControllerPolicy, make_controller
 from agents.residual import make_residual_env
+from ptrack_gym.metrics import episode_metrics
 from tests.test_divergence import Diverging
 from train.episode import _lean_limit, rollout
 
@@ -82,3 +83,24 @@ def test_the_lean_loop_is_taken_only_for_a_controller_on_a_plain_env() -> None:
     finally:
         for e in (env, residual, other):
             e.close()
+
+
+@pytest.mark.parametrize("disturbance", [None, ("impulse", 2.0)])
+def test_metrics_from_the_recorded_info_equal_recomputed_ones(disturbance) -> None:
+    """The record's per-step path distance, nearest s and time-indexed error (the env's
+    info) give the metrics that recomputing them from q (the projector, the path) gives."""
+    env = gym.make(ENV, control_hz=250.0, max_episode_steps=400, disturbance=disturbance)
+    try:
+        u = env.unwrapped
+        record, _ = rollout(env, ControllerPolicy(env, make_controller("passivity", env)), 3)
+        recomputed = dataclasses.replace(
+            record, path_distance=None, path_s=None, tracking_error=None
+        )
+        from_info = episode_metrics(record, u.model, u.projector)
+        again = episode_metrics(recomputed, u.model, u.projector)
+    finally:
+        env.close()
+    assert record.tracking_error is not None and len(record.tracking_error) == 400
+    assert from_info.keys() == again.keys()
+    for name, value in from_info.items():
+        np.testing.assert_allclose(value, again[name], rtol=1e-9, atol=1e-12, err_msg=name)

@@ -217,7 +217,7 @@ def rollout(
     ``predict``."""
     u = env.unwrapped
     rows: dict[str, list[Any]] = {
-        k: [] for k in ("t", "q", "qd", "s_ref", "tau", "d", "path_s", "energy")
+        k: [] for k in ("t", "q", "qd", "s_ref", "tau", "d", "path_s", "e", "energy")
     }
     unstable, info = False, {}
     limit = _lean_limit(env, policy) if lean else None
@@ -255,6 +255,7 @@ def rollout(
         rows["tau"].append(info["tau_nm"])
         rows["d"].append(info["path_distance"])
         rows["path_s"].append(info["path_s"])
+        rows["e"].append(info["tracking_error"])
         if keep_trace:
             diag: dict[str, float] = getattr(policy, "last_diagnostics", {})
             rows["energy"].append(
@@ -277,6 +278,7 @@ def rollout(
         intended_steps=env.spec.max_episode_steps if env.spec is not None else None,
         path_distance=np.array(rows["d"]),
         path_s=np.array(rows["path_s"]),
+        tracking_error=np.array(rows["e"]),
     )
     return record, (np.array(rows["energy"]) if keep_trace else None)
 
