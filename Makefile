@@ -68,6 +68,7 @@ bench: setup
 	$(PY) bench/env_step.py
 	$(PY) bench/controller_cost.py
 	$(PY) bench/eval_scaling.py
+	$(PY) bench/same_work.py
 	$(PY) bench/train_throughput.py --steps 1000 --warmup 300 --env-steps 5000 --repeats 3
 
 clean:
