@@ -192,8 +192,7 @@ def run_sweep(
             ):
                 writer.write(row)
                 if trace is not None:
-                    path = out / f"trace_{label(task.controller)}.npz"
-                    np.savez_compressed(path, **trace)
+                    np.savez_compressed(_trace_path(out, task.controller), **trace)
                     if cfg.plots and pool is not None:  # drawn now, among the episodes
                         drawn[task.controller] = pool.submit(
                             *_example_figure(cfg, out, task.controller)
@@ -237,6 +236,11 @@ def _example_condition(cfg: EvalConfig) -> tuple[str, float, int, int]:
     return (disturbed[0], float(levels[len(levels) // 2]), 0, 0)
 
 
+def _trace_path(out: Path, controller: str) -> Path:
+    """Where the sweep in ``out`` saves ``controller``'s example episode (its trace)."""
+    return out / f"trace_{label(controller)}.npz"
+
+
 def _example_figure(
     cfg: EvalConfig, out: Path, controller: str
 ) -> tuple[Callable[..., None], Path, str, Path]:
@@ -246,7 +250,7 @@ def _example_figure(
     cond = _example_condition(cfg)
     return (
         example_plot_file,
-        out / f"trace_{label(controller)}.npz",
+        _trace_path(out, controller),
         f"{controller}: {cond[0]} level {cond[1]:g}, seed 0",
         out / f"example_{label(controller)}.png",
     )
@@ -283,7 +287,7 @@ def _finish(
         for ctrl in cfg.controllers:
             if drawn and ctrl in drawn:
                 plots.append(drawn[ctrl])
-            elif (out / f"trace_{label(ctrl)}.npz").exists():  # e.g. from before a resume
+            elif _trace_path(out, ctrl).exists():  # e.g. saved before a resume
                 draw(*_example_figure(cfg, out, ctrl))
     summary = summarize(df, cfg.metric, cfg.reference, cfg.bootstrap_resamples)
     summary.to_csv(out / "summary.csv", index=False, float_format="%.17g")
