@@ -4,6 +4,7 @@ the refusal of corrupt results files and bad configs."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import shutil
 
 import gymnasium as gym
@@ -15,6 +16,8 @@ import ptrack_gym  # noqa: F401
 from agents.policy import ControllerPolicy
 from agents.registry import make_controller
 from ptrack_gym.errors import InvalidConfigError
+from train import sweep
+from train.episode import run_episode
 from train.evaluate import load_config, main
 from train.results import COLUMNS, CorruptResultsError, read_episodes
 from train.sweep import _finish, _run_processes, run_sweep
@@ -130,14 +133,25 @@ def test_two_workers_give_the_same_numbers_and_figures(full_run, tmp_path) -> No
         assert (out / name).read_bytes() == (full_run / name).read_bytes(), name
 
 
-def test_two_runners_share_the_tasks_and_a_failed_episode_stops_the_sweep(tmp_path) -> None:
-    """workers=2: this process and one spawned worker take tasks from one queue; every task
-    comes back once, and an episode that raises (here an unknown controller, wherever it
-    ran) ends the sweep with its error instead of being skipped."""
+def _episode_and_pid(task, settings, keep_trace):
+    """run_episode, its row tagged with the id of the process that ran it."""
+    row, trace = run_episode(task, settings, keep_trace)
+    return {**row, "pid": os.getpid()}, trace
+
+
+def test_two_runners_share_the_tasks_and_a_failed_episode_stops_the_sweep(
+    tmp_path, monkeypatch
+) -> None:
+    """workers=2: this process and one spawned worker take tasks from one queue — both run
+    episodes —; every task comes back once, and an episode that raises (here an unknown
+    controller, wherever it ran) ends the sweep with its error instead of being skipped."""
     cfg = tiny(tmp_path, "runners", "workers=2")
     tasks, settings = cfg.tasks(), cfg.settings()
-    done = [task.key() for _, _, task in _run_processes(tasks, settings, 2, set())]
-    assert sorted(done) == sorted(t.key() for t in tasks)
+    monkeypatch.setattr(sweep, "run_episode", _episode_and_pid)
+    results = list(_run_processes(tasks, settings, 2, set()))
+    assert sorted(task.key() for _, _, task in results) == sorted(t.key() for t in tasks)
+    pids = {row["pid"] for row, _, _ in results}
+    assert os.getpid() in pids and len(pids) == 2
     bad = dataclasses.replace(tasks[1], controller="no_such_controller")
     with pytest.raises(InvalidConfigError, match="no_such_controller"):
         list(_run_processes([tasks[0], bad, *tasks[2:]], settings, 2, set()))
