@@ -61,9 +61,11 @@ Safeguards (both off by default, so a = 0 stays bit-identical to the base):
   ≥ 0, so ending an episode early still never pays; ``info["reward_residual"]`` is the
   added term.
 * ``gate_rad`` d_g > 0 — a residual gated by the path error: τ_res = γ(d) scale ⊙ a with
-  γ(d) = 1 − exp(−(d/d_g)²), d the path distance of the measured state (rad). On the
-  path the residual is inactive whatever the policy outputs; ``info["residual_gate"]``
-  is γ.
+  γ(d) = 1 − exp(−(max(d − d₀, 0)/d_g)²), d the path distance of the measured state (rad)
+  and d₀ = ``gate_deadband_rad`` ≥ 0 (default 0). On the path the residual is inactive
+  whatever the policy outputs; with d₀ > 0 it is *exactly* zero while d ≤ d₀, so an arm
+  the base keeps within d₀ of the path runs bit-identically to the base alone (choose d₀
+  above the base's undisturbed path distance). ``info["residual_gate"]`` is γ.
 
 Info (every step): ``tau_base_nm`` τ_base, ``tau_residual_nm`` γ scale ⊙ clip(a, −1, 1)
 (N·m, before the env's own clipping of the sum to τ_max), ``controller`` the
@@ -94,9 +96,12 @@ DEFAULT_SCALE_FRACTION = 0.1
 _BASE_RATIO_BOUND = 2.0
 
 
-def check_safeguards(action_penalty: float, gate_rad: float | None) -> None:
-    """Raise :class:`InvalidConfigError` unless ``action_penalty`` is a finite real ≥ 0 and
-    ``gate_rad`` is None or a finite real > 0 (rad)."""
+def check_safeguards(
+    action_penalty: float, gate_rad: float | None, gate_deadband_rad: float = 0.0
+) -> None:
+    """Raise :class:`InvalidConfigError` unless ``action_penalty`` is a finite real ≥ 0,
+    ``gate_rad`` is None or a finite real > 0 (rad), and ``gate_deadband_rad`` is a finite
+    real ≥ 0 (rad) that is 0 unless a gate is set."""
     if (
         isinstance(action_penalty, bool)
         or not (isinstance(action_penalty, (int, float)) and math.isfinite(action_penalty))
@@ -109,6 +114,16 @@ def check_safeguards(action_penalty: float, gate_rad: float | None) -> None:
         or not (math.isfinite(gate_rad) and gate_rad > 0)
     ):
         raise InvalidConfigError(f"gate_rad must be None or finite and > 0, got {gate_rad!r}")
+    if (
+        isinstance(gate_deadband_rad, bool)
+        or not isinstance(gate_deadband_rad, (int, float))
+        or not (math.isfinite(gate_deadband_rad) and gate_deadband_rad >= 0)
+    ):
+        raise InvalidConfigError(
+            f"gate_deadband_rad must be finite and >= 0, got {gate_deadband_rad!r}"
+        )
+    if gate_deadband_rad > 0 and gate_rad is None:
+        raise InvalidConfigError("gate_deadband_rad needs gate_rad (the gate it widens)")
 
 
 class ControllerFeatures:
@@ -166,6 +181,7 @@ class ResidualWrapper(
             observation (default True).
         action_penalty: w ≥ 0 of the penalty on the learned part (module docstring).
         gate_rad: d_g (rad) of the path-error gate; None (default): no gate.
+        gate_deadband_rad: d₀ (rad) of the gate: γ = 0 while d ≤ d₀ (default 0).
 
     Raises:
         InvalidConfigError: (a ``ValueError``) a joint-count mismatch or a bad scale.
@@ -179,6 +195,7 @@ class ResidualWrapper(
         include_controller_state: bool = True,
         action_penalty: float = 0.0,
         gate_rad: float | None = None,
+        gate_deadband_rad: float = 0.0,
     ) -> None:
         self._controller_name = controller if isinstance(controller, str) else None
         self._registered = False  # set by residual_env: the spec is the registered one
@@ -190,6 +207,7 @@ class ResidualWrapper(
                 include_controller_state=include_controller_state,
                 action_penalty=action_penalty,
                 gate_rad=gate_rad,
+                gate_deadband_rad=gate_deadband_rad,
             )
         super().__init__(env)
         u = env.unwrapped
@@ -213,9 +231,10 @@ class ResidualWrapper(
         if not (np.all(np.isfinite(scale)) and np.all(scale >= 0.0)):
             raise InvalidConfigError(f"scale_nm must be finite and >= 0, got {scale.tolist()}")
         self.scale_nm = scale
-        check_safeguards(action_penalty, gate_rad)
+        check_safeguards(action_penalty, gate_rad, gate_deadband_rad)
         self.action_penalty = float(action_penalty)
         self.gate_rad = None if gate_rad is None else float(gate_rad)
+        self.gate_deadband_rad = float(gate_deadband_rad)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(self.n,), dtype=np.float32)
 
         inner = env.observation_space
@@ -288,8 +307,8 @@ class ResidualWrapper(
         a = np.minimum(np.maximum(a, -1.0), 1.0)
         gate = 1.0
         if self.gate_rad is not None:
-            d = u.projector.nearest(q).distance
-            gate = -math.expm1(-((d / self.gate_rad) ** 2))  # γ = 1 − exp(−(d/d_g)²)
+            d = max(u.projector.nearest(q).distance - self.gate_deadband_rad, 0.0)
+            gate = -math.expm1(-((d / self.gate_rad) ** 2))  # γ = 1 − exp(−((d − d₀)⁺/d_g)²)
         tau_res = (gate * self.scale_nm) * a  # (n,) N·m; γ = 1 exactly without a gate
         inner_action = torque_to_action(tau_base + tau_res, self.torque_limits_nm)
         obs, reward, terminated, truncated, info = self.env.step(inner_action)
@@ -314,12 +333,13 @@ def make_residual_env(
     include_controller_state: bool = True,
     action_penalty: float = 0.0,
     gate_rad: float | None = None,
+    gate_deadband_rad: float = 0.0,
     **env_kwargs: Any,
 ) -> ResidualWrapper:
     """``gym.make(env_id, **env_kwargs)`` wrapped in a :class:`ResidualWrapper` around
     the default-gain controller ``base`` (one of ``agents.registry.CONTROLLER_NAMES``),
-    with scale = ``scale_fraction`` · τ_max (N·m) and the wrapper's ``action_penalty``
-    and ``gate_rad``.
+    with scale = ``scale_fraction`` · τ_max (N·m) and the wrapper's ``action_penalty``,
+    ``gate_rad`` and ``gate_deadband_rad``.
 
     ``env_kwargs`` go to ``gym.make`` (env arguments such as ``control_hz``,
     ``disturbance``, and ``max_episode_steps``), which rejects unknown names.
@@ -329,7 +349,10 @@ def make_residual_env(
     """
     _check_base(base, scale_fraction)
     env = gym.make(env_id, **env_kwargs)
-    return _wrap(env, base, scale_fraction, include_controller_state, action_penalty, gate_rad)
+    return _wrap(
+        env, base, scale_fraction, include_controller_state,
+        action_penalty, gate_rad, gate_deadband_rad,
+    )  # fmt: skip
 
 
 def _check_base(base: str, scale_fraction: float) -> None:
@@ -346,6 +369,7 @@ def _wrap(
     include_controller_state: bool,
     action_penalty: float,
     gate_rad: float | None,
+    gate_deadband_rad: float,
 ) -> ResidualWrapper:
     """``env`` in a :class:`ResidualWrapper` around the default-gain ``base`` with scale =
     ``scale_fraction`` · τ_max (N·m); ``env`` is closed if that fails."""
@@ -353,8 +377,9 @@ def _wrap(
         limits = np.asarray(env.unwrapped.torque_limits_nm, dtype=np.float64)
         scale_nm = tuple(float(x) for x in scale_fraction * limits)
         return ResidualWrapper(
-            env, base, scale_nm, include_controller_state, action_penalty, gate_rad
-        )
+            env, base, scale_nm, include_controller_state,
+            action_penalty, gate_rad, gate_deadband_rad,
+        )  # fmt: skip
     except BaseException:
         env.close()
         raise
@@ -378,6 +403,7 @@ def residual_env(
     include_controller_state: bool = True,
     action_penalty: float = 0.0,
     gate_rad: float | None = None,
+    gate_deadband_rad: float = 0.0,
     **env_kwargs: Any,
 ) -> ResidualWrapper:
     """The entry point of the registered residual ids (:func:`register_residual_envs`):
@@ -392,7 +418,10 @@ def residual_env(
 
     _check_base(base, scale_fraction)
     env = TrackingEnv(robot=robot, **env_kwargs)
-    wrapper = _wrap(env, base, scale_fraction, include_controller_state, action_penalty, gate_rad)
+    wrapper = _wrap(
+        env, base, scale_fraction, include_controller_state,
+        action_penalty, gate_rad, gate_deadband_rad,
+    )  # fmt: skip
     wrapper._registered = True
     return wrapper
 

@@ -66,10 +66,55 @@ def test_gate_silences_the_residual_on_the_path_and_opens_off_it() -> None:
     env.close()
 
 
+@pytest.mark.parametrize("base", ["passivity", "computed_torque"])
+def test_deadband_gate_runs_bit_identical_to_the_base_while_on_the_path(base: str) -> None:
+    """With d₀ above the base's undisturbed path distance, whatever the policy outputs
+    (here random full-authority actions) the episode is the base's, bit for bit: whole
+    5-s episodes from several start phases, with the 2-mrad deadband of
+    train/configs/rl_deadband_two_link.yml."""
+    rng = np.random.default_rng(3)
+    kw = {**KW, "max_episode_steps": 1250}
+    actions = rng.uniform(-1.0, 1.0, (1250, 2))
+    alone = make_residual_env(ID, base, **kw)
+    gated = make_residual_env(ID, base, gate_rad=0.002, gate_deadband_rad=0.002, **kw)
+    for seed in (0, 7, 123):
+        for (o0, r0, t0, u0, i0), (o1, r1, t1, u1, i1) in zip(
+            episode(alone, np.zeros_like(actions), seed),
+            episode(gated, actions, seed),
+            strict=True,
+        ):
+            assert i1["residual_gate"] == 0.0
+            assert i0["path_distance"] <= 0.002
+            np.testing.assert_array_equal(o0, o1)
+            assert (r0, t0, u0) == (r1, t1, u1)
+            np.testing.assert_array_equal(i0["tau_base_nm"], i1["tau_base_nm"])
+    alone.close()
+    gated.close()
+
+
+def test_deadband_gate_opens_past_the_deadband() -> None:
+    gate, band = 0.01, 0.05
+    env = make_residual_env(ID, "computed_torque", gate_rad=gate, gate_deadband_rad=band, **KW)
+    u = env.unwrapped
+    for offset, opens in ((0.02, False), (0.08, True), (0.2, True)):
+        env.reset(seed=0, options={"q": u.path.evaluate(u.s0)[0] + offset})
+        q, _ = u.measured_joint_state()
+        d = u.projector.nearest(q).distance
+        _, _, _, _, info = env.step(np.ones(2))
+        g = -math.expm1(-((max(d - band, 0.0) / gate) ** 2))
+        assert info["residual_gate"] == pytest.approx(g, rel=1e-12, abs=1e-300)
+        np.testing.assert_allclose(info["tau_residual_nm"], g * env.scale_nm, rtol=1e-12)
+        assert (info["residual_gate"] > 0.0) == opens
+    env.close()
+
+
 def test_gate_and_penalty_are_recorded_in_the_spec() -> None:
-    env = make_residual_env(ID, "passivity", action_penalty=0.1, gate_rad=0.02, **KW)
+    env = make_residual_env(
+        ID, "passivity", action_penalty=0.1, gate_rad=0.02, gate_deadband_rad=0.003, **KW
+    )
     again = env.spec.make()
     assert again.action_penalty == 0.1 and again.gate_rad == 0.02
+    assert again.gate_deadband_rad == 0.003
     env.close()
     again.close()
 
@@ -83,6 +128,9 @@ def test_gate_and_penalty_are_recorded_in_the_spec() -> None:
         {"gate_rad": 0.0},
         {"gate_rad": float("inf")},
         {"gate_rad": "0.1"},
+        {"gate_rad": 0.01, "gate_deadband_rad": -0.001},
+        {"gate_rad": 0.01, "gate_deadband_rad": float("nan")},
+        {"gate_deadband_rad": 0.001},  # a deadband needs the gate it widens
     ],
 )
 def test_bad_safeguards_raise(kwargs) -> None:

@@ -14,7 +14,7 @@ import yaml
 
 from train.checkpoints import latest_checkpoint
 from train.hyperparameters import TrainConfigError
-from train.rl_campaign import load_campaign, main, plan
+from train.rl_campaign import load_campaign, main, plan, validate_campaign
 from train.train import parse_args
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,6 +61,13 @@ def test_the_packaged_study_loads_with_equal_budgets() -> None:
     residual = next(r for r in runs if r.residual == "passivity")
     assert residual.overrides["policy_kwargs"] == "dict(net_arch=[64, 64])"  # common kept
     assert residual.overrides["learning_starts"] == 0  # group override merged over it
+
+
+@pytest.mark.parametrize(
+    "name", ["rl_study_two_link", "rl_ablation_two_link", "rl_deadband_two_link"]
+)
+def test_every_packaged_campaign_validates(name: str) -> None:
+    assert validate_campaign(ROOT / f"train/configs/{name}.yml") >= 10
 
 
 def test_groups_merge_overrides_key_by_key(tmp_path: Path) -> None:

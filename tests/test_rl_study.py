@@ -155,3 +155,29 @@ def test_campaign_folder_names_are_the_groups(study: Path, tmp_path: Path) -> No
     runs = discover(root)
     assert sorted(r.group for r in runs) == ["res-a", "res-b"]
     assert {r.base for r in runs} == {"passivity"}
+
+
+def test_a_deadband_run_is_evaluated_with_its_deadband(study: Path, tmp_path: Path) -> None:
+    """The evaluation env is built with the run's gate and deadband: undisturbed, the
+    deadband-gated residual's episode has exactly its base's metrics."""
+    from train.episode import EpisodeSettings, Task, run_episode
+
+    run = tmp_path / "deadband"
+    shutil.copytree(study / "residual-passivity_s0", run)
+    cfg_file = run / "config.yml"
+    cfg = yaml.safe_load(cfg_file.read_text())
+    cfg["config"].update({"gate_rad": 0.002, "gate_deadband_rad": 0.002})
+    cfg_file.write_text(yaml.safe_dump(cfg))
+    settings = EpisodeSettings(
+        env_id="ptrack_gym/TwoLinkTrack-v0", episode_s=2.0, control_hz=250.0,
+        start="on_path", failure_distance_rad=0.5, recovery_threshold_rad=0.01,
+    )  # fmt: skip
+    for seed in (0, 3):
+        learned, _ = run_episode(Task(f"sb3:{run}", "none", 0.0, seed, 0), settings)
+        base, _ = run_episode(Task("passivity", "none", 0.0, seed, 0), settings)
+        for key in ("path_dist_rms", "path_dist_max", "time_err_rms", "tau_dyn_rms_frac"):
+            assert learned[key] == base[key]
+        ungated, _ = run_episode(
+            Task(f"sb3:{study / 'residual-passivity_s0'}", "none", 0.0, seed, 0), settings
+        )
+        assert ungated["path_dist_rms"] != base["path_dist_rms"]  # the run's policy does act

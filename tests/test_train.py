@@ -294,7 +294,11 @@ def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
         "kernel_weights": (1.0, 0.0, 0.0),
         "max_path_distance_rad": 0.3,
     }
-    assert res.residual_kwargs == {"action_penalty": 0.05, "gate_rad": 0.02}
+    assert res.residual_kwargs == {
+        "action_penalty": 0.05,
+        "gate_rad": 0.02,
+        "gate_deadband_rad": 0.0,
+    }
     from train.train import _env_factory
 
     env = _env_factory(res, "none")()
@@ -313,6 +317,9 @@ def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
         ["--residual", "none", "--gate-rad", "0.1"],
         ["--action-penalty", "-1"],
         ["--gate-rad", "0"],
+        ["--gate-deadband-rad", "0.001"],  # a deadband without a gate
+        ["--gate-rad", "0.01", "--gate-deadband-rad", "-0.001"],
+        ["--residual", "none", "--gate-deadband-rad", "0.001"],
         ["--algo", "ppo", "--critic-warmup-steps", "10"],
         ["--algo", "td3", "--init-log-std", "-3"],
         ["--critic-warmup-steps", "-1"],
@@ -337,8 +344,8 @@ def test_to_argv_round_trips_every_field(tmp_path: Path) -> None:
         vec_normalize=False, eval_freq=0, checkpoint_freq=50, resume=True,
         zero_init_residual=True, control_hz=500.0, episode_s=1.5, start="rest_near_path",
         reward_weights=[1.0, 0.0, 0.5], reward="kernel", kernel_weights=[1.0, 0.0, 0.0],
-        max_path_distance=0.3, action_penalty=0.05, gate_rad=0.002, critic_warmup_steps=10,
-        torch_threads=2, verbose=1,
+        max_path_distance=0.3, action_penalty=0.05, gate_rad=0.002, gate_deadband_rad=0.001,
+        critic_warmup_steps=10, torch_threads=2, verbose=1,
     )  # fmt: skip
     assert parse_args(to_argv(cfg)) == cfg
     assert parse_args(to_argv(TrainConfig(out="x"))) == TrainConfig(out="x")

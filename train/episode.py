@@ -180,6 +180,7 @@ def _sb3_env_and_policy(
             residual_kwargs={  # the gate acts on the torque; the penalty only on the reward
                 "action_penalty": float(c.get("action_penalty", 0.0)),
                 "gate_rad": c.get("gate_rad"),
+                "gate_deadband_rad": float(c.get("gate_deadband_rad", 0.0)),
             }
             if c["residual"] != "none"
             else None,

@@ -157,7 +157,9 @@ class TrainConfig:
     action_penalty: float = 0.0
     """Residual only: w of the penalty on the learned part, r + w (1 − |a|²/n)."""
     gate_rad: float | None = None
-    """Residual only: gate the residual by the path error, γ = 1 − exp(−(d/gate_rad)²)."""
+    """Residual only: gate the residual by the path error, γ = 1 − exp(−((d − d₀)⁺/gate_rad)²)."""
+    gate_deadband_rad: float = 0.0
+    """Residual with a gate only: d₀ (rad), the residual is exactly 0 while d ≤ d₀."""
     init_log_std: float | None = None
     """SAC only: the actor's log-std layer starts constant at this value (exploration
     std exp(init_log_std) before tanh); None: SB3's initialisation."""
@@ -215,10 +217,16 @@ def validate(cfg: TrainConfig) -> Resolved:
     if not (math.isfinite(cfg.episode_s) and cfg.episode_s > 0):
         raise TrainConfigError(f"episode_s must be positive, got {cfg.episode_s}")
     residual_kwargs: dict[str, Any] = {}
-    if cfg.action_penalty != 0.0 or cfg.gate_rad is not None:
+    if cfg.action_penalty != 0.0 or cfg.gate_rad is not None or cfg.gate_deadband_rad != 0.0:
         if cfg.residual == "none":
-            raise TrainConfigError("action_penalty and gate_rad need a residual base")
-        residual_kwargs = {"action_penalty": cfg.action_penalty, "gate_rad": cfg.gate_rad}
+            raise TrainConfigError(
+                "action_penalty, gate_rad and gate_deadband_rad need a residual base"
+            )
+        residual_kwargs = {
+            "action_penalty": cfg.action_penalty,
+            "gate_rad": cfg.gate_rad,
+            "gate_deadband_rad": cfg.gate_deadband_rad,
+        }
     if cfg.critic_warmup_steps < 0:
         raise TrainConfigError(f"critic_warmup_steps must be >= 0, got {cfg.critic_warmup_steps}")
     if cfg.critic_warmup_steps and cfg.algo == "ppo":
@@ -294,7 +302,7 @@ def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
     saved = yaml.safe_load(path.read_text()).get("config", {})
     for key in ("algo", "env_id", "residual", "scale_fraction", "start", "episode_s",
                 "reward_weights", "reward", "kernel_weights", "max_path_distance", "action_penalty",
-                "gate_rad"):  # fmt: skip
+                "gate_rad", "gate_deadband_rad"):  # fmt: skip
         if key in saved and saved[key] != getattr(cfg, key):
             raise TrainConfigError(
                 f"--resume: {key}={getattr(cfg, key)!r} differs from the run's {saved[key]!r}"
@@ -606,6 +614,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-path-distance", type=float, default=None, help="rad; end an episode")
     p.add_argument("--action-penalty", type=float, default=d.action_penalty)
     p.add_argument("--gate-rad", type=float, default=None)
+    p.add_argument("--gate-deadband-rad", type=float, default=d.gate_deadband_rad)
     p.add_argument("--init-log-std", type=float, default=None)
     p.add_argument("--critic-warmup-steps", type=int, default=d.critic_warmup_steps)
     p.add_argument("--torch-threads", type=int, default=d.torch_threads)
