@@ -119,15 +119,18 @@ def test_groups_on_different_bases_each_meet_their_own_base(study: Path, tmp_pat
         cfg = yaml.safe_load(cfg_file.read_text())
         cfg["config"].update(change)
         cfg_file.write_text(yaml.safe_dump(cfg))
+    shutil.copytree(study / "residual-passivity_s0", root / "d")
+    (root / "d" / "deploy.yml").write_text("gate_rad: 0.002\n")  # gated at evaluation only
     runs = discover(root)
     assert sorted(r.group for r in runs) == [
-        "residual-computed_torque", "residual-passivity", "residual-passivity-gated",
+        "residual-computed_torque", "residual-passivity", "residual-passivity-deploy-gated",
+        "residual-passivity-gated",
     ]  # fmt: skip
     curves = sweep_config(runs, 2, tmp_path / "out", 1)
     final = sweep_config(runs, 2, tmp_path / "out" / "final", 1, ["none", "payload"])
     for cfg in (curves, final):
         assert cfg.controllers[:3] == ["computed_torque", "passivity", "pd_gravity"]
-    assert len(curves.controllers) == 3 + 3 * 2  # every checkpoint (100, 200) of 3 runs
+    assert len(curves.controllers) == 3 + 4 * 2  # every checkpoint (100, 200) of 4 runs
     assert final.controllers[3:] == [f"sb3:{r.path}@200" for r in runs]
     assert (final.disturbances, final.levels) == (["none", "payload"], [1.0])
 
@@ -157,27 +160,57 @@ def test_campaign_folder_names_are_the_groups(study: Path, tmp_path: Path) -> No
     assert {r.base for r in runs} == {"passivity"}
 
 
-def test_a_deadband_run_is_evaluated_with_its_deadband(study: Path, tmp_path: Path) -> None:
-    """The evaluation env is built with the run's gate and deadband: undisturbed, the
+@pytest.mark.parametrize("where", ["config", "deploy"])
+def test_a_deadband_run_is_evaluated_with_its_deadband(
+    study: Path, tmp_path: Path, where: str
+) -> None:
+    """The evaluation env is built with the run's gate and deadband — from its training
+    config, or from a deploy.yml put beside a run trained without one: undisturbed, the
     deadband-gated residual's episode has exactly its base's metrics."""
     from train.episode import EpisodeSettings, Task, run_episode
 
     run = tmp_path / "deadband"
     shutil.copytree(study / "residual-passivity_s0", run)
-    cfg_file = run / "config.yml"
-    cfg = yaml.safe_load(cfg_file.read_text())
-    cfg["config"].update({"gate_rad": 0.002, "gate_deadband_rad": 0.002})
-    cfg_file.write_text(yaml.safe_dump(cfg))
+    gate = {"gate_rad": 0.002, "gate_deadband_rad": 0.002}
+    if where == "config":
+        cfg_file = run / "config.yml"
+        cfg = yaml.safe_load(cfg_file.read_text())
+        cfg["config"].update(gate)
+        cfg_file.write_text(yaml.safe_dump(cfg))
+    else:
+        (run / "deploy.yml").write_text(yaml.safe_dump(gate))
     settings = EpisodeSettings(
         env_id="ptrack_gym/TwoLinkTrack-v0", episode_s=2.0, control_hz=250.0,
         start="on_path", failure_distance_rad=0.5, recovery_threshold_rad=0.01,
     )  # fmt: skip
+    plain = f"sb3:{study / 'residual-passivity_s0'}"
     for seed in (0, 3):
         learned, _ = run_episode(Task(f"sb3:{run}", "none", 0.0, seed, 0), settings)
         base, _ = run_episode(Task("passivity", "none", 0.0, seed, 0), settings)
         for key in ("path_dist_rms", "path_dist_max", "time_err_rms", "tau_dyn_rms_frac"):
             assert learned[key] == base[key]
-        ungated, _ = run_episode(
-            Task(f"sb3:{study / 'residual-passivity_s0'}", "none", 0.0, seed, 0), settings
-        )
+        ungated, _ = run_episode(Task(plain, "none", 0.0, seed, 0), settings)
         assert ungated["path_dist_rms"] != base["path_dist_rms"]  # the run's policy does act
+
+
+@pytest.mark.parametrize(
+    ("run", "text", "match"),
+    [
+        ("residual-passivity_s0", "gate_rad: 0.01\nscale_fraction: 0.5\n", "expected a mapping"),
+        ("residual-passivity_s0", "- gate_rad\n", "expected a mapping"),
+        ("residual-passivity_s0", "gate_rad: -0.01\n", "gate_rad must be"),
+        ("residual-passivity_s0", "gate_deadband_rad: 0.01\n", "needs gate_rad"),
+        ("pure_s0", "gate_rad: 0.01\n", "need a residual run"),
+    ],
+)
+def test_a_bad_deploy_file_is_named_before_anything_runs(
+    study: Path, tmp_path: Path, run: str, text: str, match: str
+) -> None:
+    from train.sb3_runs import check_sb3_run, deploy_safeguards
+
+    folder = tmp_path / run
+    shutil.copytree(study / run, folder)
+    assert deploy_safeguards(folder) == {}
+    (folder / "deploy.yml").write_text(text)
+    with pytest.raises(InvalidConfigError, match=match):
+        check_sb3_run(f"sb3:{folder}", "ptrack_gym/TwoLinkTrack-v0")

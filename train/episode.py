@@ -162,7 +162,11 @@ def _sb3_env_and_policy(
     def build() -> tuple[gym.Env[Any, Any], Predictor]:
         import torch
 
-        from train.sb3_runs import load_sb3_policy  # torch and SB3 only for a model
+        from train.sb3_runs import (  # SB3 only for a model
+            deploy_safeguards,
+            load_sb3_policy,
+            sb3_files,
+        )
 
         # One observation per call: more torch threads only contend with the sweep's other
         # runners (the sweep's own process runs episodes too, beside its spawned workers).
@@ -181,6 +185,7 @@ def _sb3_env_and_policy(
                 "action_penalty": float(c.get("action_penalty", 0.0)),
                 "gate_rad": c.get("gate_rad"),
                 "gate_deadband_rad": float(c.get("gate_deadband_rad", 0.0)),
+                **deploy_safeguards(sb3_files(controller)[0]),  # deploy.yml's gate wins
             }
             if c["residual"] != "none"
             else None,

@@ -124,6 +124,10 @@ def discover(root: Path) -> list[Run]:
             group = "pure" if base == "none" else f"residual-{base}"
             if base != "none" and c.get("gate_rad") is not None:
                 group += "-gated"
+            from train.sb3_runs import deploy_safeguards  # SB3 and torch only here
+
+            if deploy_safeguards(run_dir):  # a gate put on at evaluation only
+                group += "-deploy-gated"
         runs.append(
             Run(
                 path=run_dir,

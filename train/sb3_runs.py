@@ -1,6 +1,10 @@
 """Trained Stable-Baselines3 runs of ``python -m train.train``: the algorithms, the files
 of a run folder, and a run loaded as a policy with SB3's ``predict``.
 
+A residual run folder may hold a ``deploy.yml``: safeguards applied when the run is
+*evaluated*, not when it was trained — the path-error gate (``gate_rad``,
+``gate_deadband_rad``) put on a residual trained without it (:func:`deploy_safeguards`).
+
 A run is named ``sb3:<run folder>`` (its final ``model.zip``) or ``sb3:<run folder>@<steps>``
 (its checkpoint ``checkpoints/rl_model_<steps>_steps.zip`` with the matching VecNormalize
 statistics): a learning curve is a sweep over a run's checkpoints.
@@ -47,9 +51,37 @@ def run_config(run_dir: Path) -> dict[str, Any]:
     return yaml.safe_load((run_dir / "config.yml").read_text())
 
 
+#: The keys a run's ``deploy.yml`` may set (the residual wrapper's gate, rad).
+DEPLOY_KEYS = ("gate_rad", "gate_deadband_rad")
+
+
+def deploy_safeguards(run_dir: Path) -> dict[str, Any]:
+    """The evaluation-time safeguards of a run: ``deploy.yml``'s mapping (keys of
+    :data:`DEPLOY_KEYS`), or {} without one. They override the training config's own
+    gate when the run's env is rebuilt for evaluation; the policy is unchanged (its
+    observation does not include the gate).
+
+    Raises:
+        InvalidConfigError: an unknown key, a bad value (``check_safeguards``), or a
+            deploy.yml on a run without a residual base.
+    """
+    from agents.residual import check_safeguards
+
+    path = run_dir / "deploy.yml"
+    if not path.exists():
+        return {}
+    data = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(data, dict) or set(data) - set(DEPLOY_KEYS):
+        raise InvalidConfigError(f"{path}: expected a mapping of {DEPLOY_KEYS}, got {data!r}")
+    if run_config(run_dir)["config"]["residual"] == "none":
+        raise InvalidConfigError(f"{path}: deployment safeguards need a residual run")
+    check_safeguards(0.0, data.get("gate_rad"), data.get("gate_deadband_rad", 0.0))
+    return dict(data)
+
+
 def check_sb3_run(name: str, env_id: str) -> Path:
-    """The run folder of ``sb3:…``, checked: its config and model exist and it was
-    trained on ``env_id``; raises :class:`InvalidConfigError`."""
+    """The run folder of ``sb3:…``, checked: its config and model exist, it was trained
+    on ``env_id`` and its ``deploy.yml`` (if any) is valid; raises :class:`InvalidConfigError`."""
     run_dir, model_zip, _ = sb3_files(name)
     for path in (run_dir / "config.yml", model_zip):
         if not path.exists():
@@ -57,6 +89,7 @@ def check_sb3_run(name: str, env_id: str) -> Path:
     trained_on = run_config(run_dir)["config"]["env_id"]
     if trained_on != env_id:
         raise InvalidConfigError(f"{name} was trained on {trained_on}, not {env_id}")
+    deploy_safeguards(run_dir)  # a bad deploy.yml is named before anything runs
     return run_dir
 
 
