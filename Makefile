@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband clean check-python
+.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval clean check-python
 
 setup: $(STAMP)
 
@@ -60,6 +60,22 @@ rl-study: setup
 rl-deadband: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_deadband_two_link.yml --out runs/rl_deadband_two_link --workers 2
 	$(PY) -m train.rl_study --runs runs/rl_deadband_two_link --out docs/results/rl_deadband_two_link --episodes 10 --every 20000 --no-progress
+
+# The same 2-mrad deadband put on residuals trained without a gate, at evaluation only (a
+# deploy.yml beside copies of the final checkpoints of rl-study's computed-torque residuals
+# and the penalty ablation's w = 0 passivity residuals; needs both campaigns' runs/).
+GATED := runs/rl_deploy_deadband_two_link
+rl-gated-eval: setup
+	for i in 0 1 2 3 4; do \
+	  for pair in rl_ablation_two_link/residual-passivity-penalty0_s$$i:residual-passivity-deploy_s$$i \
+	              rl_study_two_link/residual-computed_torque_s$$i:residual-computed_torque-deploy_s$$i; do \
+	    src=runs/$${pair%%:*}; dst=$(GATED)/$${pair##*:}; mkdir -p $$dst/checkpoints; \
+	    cp -a $$src/config.yml $$src/command.txt $$src/monitor $$dst/; \
+	    cp -a $$src/checkpoints/rl_model_60000_steps.zip $$src/checkpoints/rl_model_vecnormalize_60000_steps.pkl $$dst/checkpoints/; \
+	    printf 'gate_rad: 0.002\ngate_deadband_rad: 0.002\n' > $$dst/deploy.yml; \
+	  done; \
+	done
+	$(PY) -m train.rl_study --runs $(GATED) --out docs/results/rl_deploy_deadband_two_link --episodes 10 --no-progress
 
 lint: setup
 	$(PY) -m ruff check .

@@ -68,8 +68,15 @@ def test_shipped_model_runs_deterministically_and_acts(model: str, monkeypatch) 
     assert np.isfinite(row_a["path_dist_rms"]) and not row_a["failed"]
     assert trace is not None
     base = yaml.safe_load((ROOT / sb3_files(model)[0] / "config.yml").read_text())["config"]
-    if base["residual"] != "none":
+    gated = (ROOT / sb3_files(model)[0] / "deploy.yml").exists()
+    if base["residual"] != "none" and not gated:
         alone, _ = run_episode(Task(base["residual"], "impulse", 1.0, 0, 0), settings)
         assert row_a["tau_rms_frac"] != alone["tau_rms_frac"]  # the residual acted
+    elif gated:  # on the path it is its base, bit for bit; pushed off it, it acts
+        for disturbance, same in (("none", True), ("periodic", False)):
+            level = 0.0 if disturbance == "none" else 1.0  # periodic: off the path at once
+            row, _ = run_episode(Task(model, disturbance, level, 0, 0), settings)
+            alone, _ = run_episode(Task(base["residual"], disturbance, level, 0, 0), settings)
+            assert (row["tau_rms_frac"] == alone["tau_rms_frac"]) == same, disturbance
     else:
         assert row_a["path_dist_rms"] < 0.1  # a pure policy that tracks, roughly
