@@ -56,7 +56,7 @@ rl-study: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_study_two_link.yml --out runs/rl_study_two_link --workers 2
 	$(PY) -m train.rl_study --runs runs/rl_study_two_link --out docs/results/rl_study_two_link --episodes 10 --every 20000 --no-progress
 
-# The deadband-gated residuals of docs/rl.md (10 SAC runs, about 30 min on 2 cores, then 10 min).
+# The deadband-gated residuals of docs/rl.md (10 SAC runs, 28 min on 2 cores, then 6 min).
 rl-deadband: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_deadband_two_link.yml --out runs/rl_deadband_two_link --workers 2
 	$(PY) -m train.rl_study --runs runs/rl_deadband_two_link --out docs/results/rl_deadband_two_link --episodes 10 --every 20000 --no-progress
