@@ -227,6 +227,8 @@ def test_corrupt_results_are_refused(full_run, tmp_path, mutate, match) -> None:
         "backend=spark",
         "reference=magic",
         "seeds=0",
+        "path=spiral",
+        "path_seed=1.5",
     ],
 )
 def test_bad_config_is_refused_before_running(tmp_path, override, capsys) -> None:
@@ -236,6 +238,45 @@ def test_bad_config_is_refused_before_running(tmp_path, override, capsys) -> Non
         )
     assert exc.value.code == 2
     assert not (tmp_path / "x" / "episodes.csv").exists()
+
+
+def test_a_sweep_on_another_path_runs_every_entrant_on_that_path(monkeypatch) -> None:
+    """``path``/``path_seed`` reach the env of a model-based controller and of a trained
+    model alike (a held-out path for the RL entrants): the episode is the one a direct
+    ``gym.make(path=..., path_seed=...)`` rollout gives."""
+    from pathlib import Path
+
+    from train.episode import _sb3_env_and_policy
+
+    monkeypatch.chdir(Path(__file__).resolve().parents[1])
+    cfg = load_config(
+        Path("train/configs/main_rl.yml"), ["episode_s=0.4", "path=random", "path_seed=3"]
+    )
+    settings = cfg.settings()
+    default = dataclasses.replace(settings, path="default", path_seed=None)
+    env, _ = _sb3_env_and_policy("sb3:models/sac_residual_passivity_twolink", settings, "none", 0)
+    reference = gym.make(
+        "ptrack_gym/TwoLinkTrack-v0", control_hz=250.0, path="random", path_seed=3
+    ).unwrapped.path
+    for s in (0.0, 0.7, 1.9):
+        np.testing.assert_array_equal(env.unwrapped.path.evaluate(s)[0], reference.evaluate(s)[0])
+    task = sweep.Task("pd_gravity", "none", 0.0, 0, 0)
+    row, _ = run_episode(task, settings)
+    row_default, _ = run_episode(task, default)
+    assert row["path_dist_rms"] != row_default["path_dist_rms"]
+    direct = gym.make(
+        "ptrack_gym/TwoLinkTrack-v0", control_hz=250.0, path="random", path_seed=3,
+        max_episode_steps=100, horizon_s=0.4,
+    )  # fmt: skip
+    policy = ControllerPolicy(direct, make_controller("pd_gravity", direct))
+    obs, _ = direct.reset(seed=task.reset_seed)
+    dist = []
+    for _ in range(100):
+        obs, _, _, _, info = direct.step(policy.predict(obs)[0])
+        dist.append(info["path_distance"])
+    assert row["path_dist_rms"] == pytest.approx(
+        float(np.sqrt(np.mean(np.square(dist)))), rel=1e-12
+    )
 
 
 def test_paired_controllers_meet_identical_disturbances() -> None:

@@ -67,6 +67,10 @@ class EpisodeSettings:
     failure_distance_rad: float
     recovery_threshold_rad: float
     gains: str | tuple[tuple[str, Any], ...] = "default"
+    path: str = "default"
+    """The env's reference path family ("default": the path the RL entrants trained on)."""
+    path_seed: int | None = None
+    """Seed of a "random" path."""
     """The model-based controllers' gains: "default", "tuned" (``agents/tuned``), or rates
     as sorted (name, value) pairs (what ``python -m train.tune`` tries)."""
 
@@ -142,6 +146,10 @@ def _env_key(settings: EpisodeSettings) -> EpisodeSettings:
     return dataclasses.replace(settings, gains="default")
 
 
+def _path_kwargs(settings: EpisodeSettings) -> dict[str, Any]:
+    return {"path": settings.path, "path_seed": settings.path_seed}
+
+
 def _env(settings: EpisodeSettings, disturbance: str, level: float) -> gym.Env[Any, Any]:
     steps = round(settings.episode_s * settings.control_hz)
     return _cached(
@@ -150,7 +158,11 @@ def _env(settings: EpisodeSettings, disturbance: str, level: float) -> gym.Env[A
         lambda: gym.make(
             settings.env_id,
             **env_kwargs(
-                settings.control_hz, steps, settings.start, _disturbance_text(disturbance, level)
+                settings.control_hz,
+                steps,
+                settings.start,
+                _disturbance_text(disturbance, level),
+                extra=_path_kwargs(settings),
             ),
         ),
     )
@@ -181,6 +193,7 @@ def _sb3_env_and_policy(
             round(settings.episode_s * derived["control_hz"]),
             settings.start,
             _disturbance_text(disturbance, level),
+            extra=_path_kwargs(settings),
             residual_kwargs={  # the gate acts on the torque; the penalty only on the reward
                 "action_penalty": float(c.get("action_penalty", 0.0)),
                 "gate_rad": c.get("gate_rad"),

@@ -29,6 +29,7 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -70,6 +71,11 @@ class EvalConfig:
     """Control rate (Hz); physics runs at 1 kHz."""
     start: str = "on_path"
     """Start mode of the env ("on_path" or "rest_near_path")."""
+    path: str = "default"
+    """The reference path family of the env ("default", "circle", "random"): another
+    path than the one the RL entrants were trained on is a held-out check."""
+    path_seed: int | None = None
+    """Seed of a "random" path (the same path for every episode of the sweep)."""
     reference: str = "computed_torque"
     """Controller the paired differences are taken against."""
     gains: str = "default"
@@ -133,7 +139,10 @@ class EvalConfig:
         for d in self.disturbances:
             for level in [0.0] if d == "none" else self.levels:
                 text = None if d == "none" else f"{d}:{level}"
-                check_env_kwargs(self.env_id, env_kwargs(self.control_hz, steps, self.start, text))
+                check_env_kwargs(
+                    self.env_id,
+                    env_kwargs(self.control_hz, steps, self.start, text, extra=self._path_kwargs()),
+                )
         if self.backend not in ("process", "ray"):
             raise InvalidConfigError(f"backend must be 'process' or 'ray', got {self.backend!r}")
         if self.reference not in self.controllers:
@@ -150,12 +159,17 @@ class EvalConfig:
         if self.video:
             require_extra("moviepy", "video", "video: true")
 
+    def _path_kwargs(self) -> dict[str, Any]:
+        return {"path": self.path, "path_seed": self.path_seed}
+
     def settings(self) -> EpisodeSettings:
         return EpisodeSettings(
             env_id=self.env_id,
             episode_s=self.episode_s,
             control_hz=self.control_hz,
             start=self.start,
+            path=self.path,
+            path_seed=self.path_seed,
             failure_distance_rad=self.failure_distance_rad,
             recovery_threshold_rad=self.recovery_threshold_rad,
             gains=self.gains,
