@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval heldout clean check-python
+.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long heldout clean check-python
 
 setup: $(STAMP)
 
@@ -35,6 +35,18 @@ $(STAMP): pyproject.toml constraints.txt | check-python
 run: setup
 	$(PY) -m train.evaluate --config train/configs/main.yml --out results/main --no-progress
 	$(PY) -m train.evaluate --config train/configs/main_rl.yml --out results/main_rl --no-progress
+
+# Pure SAC on a longer budget: the study's pure runs of seeds 0 and 1 (needs rl-study's
+# runs/) resumed to 600 000 steps, 2 processes (about 1 h on 2 cores), then evaluated.
+# (docs/results/rl_pure_long_two_link: the same, stopped by a wall-clock limit at 570 000
+# and 600 000 steps.)
+LONG := runs/rl_pure_long_two_link
+rl-pure-long: setup
+	mkdir -p $(LONG) && for s in 0 1; do cp -a runs/rl_study_two_link/pure_s$$s $(LONG)/; done
+	for s in 0 1; do $(PY) -m train.train --out $(LONG)/pure_s$$s --seed $$s --disturbance impulse:1.0 \
+	  --steps 540000 --set 'policy_kwargs=dict(net_arch=[64, 64])' --eval-freq 0 --checkpoint-freq 30000 \
+	  --resume --reward kernel --kernel-weights 0.5 0.4 0.1 --max-path-distance 0.5 & done; wait
+	$(PY) -m train.rl_study --runs $(LONG) --out docs/results/rl_pure_long_two_link --episodes 10 --every 60000 --no-progress
 
 # The RL entrants on three paths they were not trained on (about 1 min each on 2 cores).
 heldout: setup
