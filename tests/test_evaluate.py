@@ -246,6 +246,7 @@ def test_a_sweep_on_another_path_runs_every_entrant_on_that_path(monkeypatch) ->
     ``gym.make(path=..., path_seed=...)`` rollout gives."""
     from pathlib import Path
 
+    pytest.importorskip("stable_baselines3", reason="the optional 'train' extra is not installed")
     from train.episode import _sb3_env_and_policy
 
     monkeypatch.chdir(Path(__file__).resolve().parents[1])
