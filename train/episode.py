@@ -67,12 +67,12 @@ class EpisodeSettings:
     failure_distance_rad: float
     recovery_threshold_rad: float
     gains: str | tuple[tuple[str, Any], ...] = "default"
+    """The model-based controllers' gains: "default", "tuned" (``agents/tuned``), or rates
+    as sorted (name, value) pairs (what ``python -m train.tune`` tries)."""
     path: str = "default"
     """The env's reference path family ("default": the path the RL entrants trained on)."""
     path_seed: int | None = None
     """Seed of a "random" path."""
-    """The model-based controllers' gains: "default", "tuned" (``agents/tuned``), or rates
-    as sorted (name, value) pairs (what ``python -m train.tune`` tries)."""
 
     def controller_gains(self) -> str | dict[str, Any]:
         """The ``gains`` argument of ``make_controller``."""
@@ -146,7 +146,8 @@ def _env_key(settings: EpisodeSettings) -> EpisodeSettings:
     return dataclasses.replace(settings, gains="default")
 
 
-def _path_kwargs(settings: EpisodeSettings) -> dict[str, Any]:
+def path_kwargs(settings: EpisodeSettings) -> dict[str, Any]:
+    """The env arguments of the sweep's reference path (``path``, ``path_seed``)."""
     return {"path": settings.path, "path_seed": settings.path_seed}
 
 
@@ -162,7 +163,7 @@ def _env(settings: EpisodeSettings, disturbance: str, level: float) -> gym.Env[A
                 steps,
                 settings.start,
                 _disturbance_text(disturbance, level),
-                extra=_path_kwargs(settings),
+                extra=path_kwargs(settings),
             ),
         ),
     )
@@ -193,7 +194,7 @@ def _sb3_env_and_policy(
             round(settings.episode_s * derived["control_hz"]),
             settings.start,
             _disturbance_text(disturbance, level),
-            extra=_path_kwargs(settings),
+            extra=path_kwargs(settings),
             residual_kwargs={  # the gate acts on the torque; the penalty only on the reward
                 "action_penalty": float(c.get("action_penalty", 0.0)),
                 "gate_rad": c.get("gate_rad"),

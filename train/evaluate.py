@@ -29,7 +29,6 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -40,7 +39,7 @@ from ptrack_gym.metrics import METRIC_NAMES
 from ptrack_gym.robots import profile_for_env_id
 from train.config_files import config_data
 from train.envs import check_env_kwargs, env_kwargs
-from train.episode import SB3_PREFIX, EpisodeSettings, Task
+from train.episode import SB3_PREFIX, EpisodeSettings, Task, path_kwargs
 
 DEFAULT_CONFIG = Path(__file__).parent / "configs" / "main.yml"
 
@@ -136,12 +135,12 @@ class EvalConfig:
         if not (np.isfinite(self.episode_s) and self.episode_s > 0):
             raise InvalidConfigError("episode_s must be positive")
         steps = max(1, round(self.episode_s * self.control_hz)) if self.control_hz > 0 else 1
+        path = path_kwargs(self.settings())
         for d in self.disturbances:
             for level in [0.0] if d == "none" else self.levels:
                 text = None if d == "none" else f"{d}:{level}"
                 check_env_kwargs(
-                    self.env_id,
-                    env_kwargs(self.control_hz, steps, self.start, text, extra=self._path_kwargs()),
+                    self.env_id, env_kwargs(self.control_hz, steps, self.start, text, extra=path)
                 )
         if self.backend not in ("process", "ray"):
             raise InvalidConfigError(f"backend must be 'process' or 'ray', got {self.backend!r}")
@@ -158,9 +157,6 @@ class EvalConfig:
             require_extra("ray", "ray", "backend: ray")
         if self.video:
             require_extra("moviepy", "video", "video: true")
-
-    def _path_kwargs(self) -> dict[str, Any]:
-        return {"path": self.path, "path_seed": self.path_seed}
 
     def settings(self) -> EpisodeSettings:
         return EpisodeSettings(
