@@ -43,9 +43,10 @@ run: setup
 LONG := runs/rl_pure_long_two_link
 rl-pure-long: setup
 	mkdir -p $(LONG) && for s in 0 1; do cp -a runs/rl_study_two_link/pure_s$$s $(LONG)/; done
-	for s in 0 1; do $(PY) -m train.train --out $(LONG)/pure_s$$s --seed $$s --disturbance impulse:1.0 \
+	pids=; for s in 0 1; do $(PY) -m train.train --out $(LONG)/pure_s$$s --seed $$s --disturbance impulse:1.0 \
 	  --steps 540000 --set 'policy_kwargs=dict(net_arch=[64, 64])' --eval-freq 0 --checkpoint-freq 30000 \
-	  --resume --reward kernel --kernel-weights 0.5 0.4 0.1 --max-path-distance 0.5 & done; wait
+	  --resume --reward kernel --kernel-weights 0.5 0.4 0.1 --max-path-distance 0.5 & pids="$$pids $$!"; done; \
+	for p in $$pids; do wait $$p || exit 1; done
 	$(PY) -m train.rl_study --runs $(LONG) --out docs/results/rl_pure_long_two_link --episodes 10 --every 60000 --no-progress
 
 # The RL entrants on three paths they were not trained on (about 1 min each on 2 cores).
