@@ -116,19 +116,19 @@ def test_normalized_scores_are_decades_from_the_condition_median():
     np.testing.assert_allclose(scores["b"][0], np.log10([0.55 / 0.1, 5.5e-4 / 1e-3]))
 
 
-def test_without_rliable_the_report_says_how_to_get_the_aggregate(monkeypatch, tmp_path):
+def test_the_aggregate_needs_no_rliable(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "rliable", None)  # import rliable raises ImportError
     df = frame({("ref", "none", 0.0): REF, ("b", "none", 0.0): 2 * REF})
-    assert "optional `report` extra" in aggregate(df, "path_dist_rms", tmp_path)
+    assert "| b |" in aggregate(df, "path_dist_rms", None, resamples=200)
     path = write_report(df, tmp_path, "path_dist_rms", "ref", ["missing/folder"], 2000)
     text = path.read_text()
     assert "b is farther from it in 1" in text
     assert "Missing: `missing/folder`" in text
+    assert "| ref |" in text and (tmp_path / "aggregate.png").stat().st_size > 0
     assert (tmp_path / "comparisons.csv").exists()
 
 
-def test_aggregate_with_rliable_is_reproducible(tmp_path):
-    pytest.importorskip("rliable", reason="the optional 'report' extra")
+def test_aggregate_is_reproducible(tmp_path):
     df = frame(
         {
             ("ref", "none", 0.0): REF,
@@ -139,9 +139,64 @@ def test_aggregate_with_rliable_is_reproducible(tmp_path):
     )
     first = aggregate(df, "path_dist_rms", None, resamples=200)
     assert aggregate(df, "path_dist_rms", None, resamples=200) == first  # same seed, same CIs
+    assert aggregate(df, "path_dist_rms", None, resamples=200, seed=1) != first
     with_plot = aggregate(df, "path_dist_rms", tmp_path, resamples=200)
     assert with_plot.startswith(first) and (tmp_path / "aggregate.png").stat().st_size > 0
     assert "| ref |" in first and "| b |" in first
+
+
+def _rliable_interval(x, statistic, resamples, rng):
+    """The reference: rliable's StratifiedBootstrap, its indices drawn from ``rng`` (rliable
+    1.2 ignores ``random_state`` and draws from the global ``np.random``)."""
+    from rliable import library as rly
+
+    class Seeded(rly.StratifiedBootstrap):
+        def update_indices(self):
+            indices = self.generator.choice(self._num_items, self._args_shape, replace=True)
+            return (indices, *self._strata_indices)
+
+    bootstrap = Seeded(x, seed=rng)
+    return statistic(x), bootstrap.conf_int(
+        statistic, reps=resamples, size=0.95, method="percentile"
+    )
+
+
+@pytest.mark.parametrize("shape", [(5, 10), (24, 2), (7, 1), (3, 13)])
+def test_stratified_bootstrap_equals_rliable_bit_for_bit(shape):
+    pytest.importorskip("rliable", reason="the optional 'report' extra (the reference)")
+    from rliable import metrics as rlm
+
+    from train.report import iqm_and_mean, performance_profile, stratified_bootstrap
+
+    x = np.random.default_rng(sum(shape)).standard_normal(shape) * np.linspace(0.5, 2, shape[1])
+    taus = np.linspace(-2.0, 2.0, 41)
+    cases = [
+        (iqm_and_mean, lambda m: np.array([rlm.aggregate_iqm(m), rlm.aggregate_mean(m)])),
+        (lambda b: performance_profile(b, taus), lambda m: (m.reshape(-1, 1) > taus).mean(axis=0)),
+    ]
+    for batch_statistic, statistic in cases:
+        point, interval = stratified_bootstrap(x, batch_statistic, 300, np.random.default_rng(3))
+        ref_point, ref_interval = _rliable_interval(x, statistic, 300, np.random.default_rng(3))
+        np.testing.assert_array_equal(point, ref_point)
+        np.testing.assert_array_equal(interval, ref_interval)
+
+
+def test_stratified_bootstrap_resamples_runs_within_each_task():
+    from train.report import iqm_and_mean, stratified_bootstrap
+
+    # Every run equal within a task: any resample of runs within tasks is x itself, so the
+    # interval collapses to the point (a bootstrap mixing tasks would not).
+    x = np.tile(np.array([[0.0, 1.0, 5.0]]), (6, 1))
+    point, interval = stratified_bootstrap(x, iqm_and_mean, 200, np.random.default_rng(0))
+    np.testing.assert_array_equal(interval, np.vstack([point, point]))
+    np.testing.assert_allclose(point, [1.6, 2.0])  # IQM of {0,1,5}×6: mean of 0,0,1×6,5,5
+    # A wider spread of runs widens the interval; it always brackets the point here.
+    y = np.random.default_rng(1).standard_normal((20, 3))
+    p1, ci1 = stratified_bootstrap(y, iqm_and_mean, 500, np.random.default_rng(0))
+    p3, ci3 = stratified_bootstrap(3 * y, iqm_and_mean, 500, np.random.default_rng(0))
+    assert np.all(ci1[0] <= p1) and np.all(p1 <= ci1[1])
+    np.testing.assert_allclose(ci3, 3 * ci1, rtol=1e-12)  # the same draws, scaled scores
+    np.testing.assert_allclose(p3, 3 * p1, rtol=1e-12)
 
 
 def test_worst_case_section_reads_a_search_summary(tmp_path):
