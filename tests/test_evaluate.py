@@ -74,6 +74,7 @@ def test_tiny_sweep_writes_tables_provenance_and_plots(full_run) -> None:
         "failures.png",
         "example_passivity.png",
         "example_computed_torque.png",
+        "aggregate.png",
     ):
         assert (out / name).stat().st_size > 0, name
     assert not (out / "videos").exists()  # video is opt-in
@@ -87,6 +88,7 @@ def test_video_records_the_example_episode_of_every_controller(tmp_path) -> None
     )
     for ctrl in ("passivity", "computed_torque"):
         assert (out / "videos" / ctrl / f"{ctrl}-episode-0.mp4").stat().st_size > 1000
+    assert not list(out.glob("*.png"))  # plots=false: no figure, the aggregate's included
 
 
 @pytest.mark.parametrize(
@@ -127,7 +129,9 @@ def test_two_workers_give_the_same_numbers_and_figures(full_run, tmp_path) -> No
     out = run_sweep(tiny(tmp_path, "two", "workers=2"), progress=False)
     pd.testing.assert_frame_equal(numbers(out / "episodes.csv"), numbers(full_run / "episodes.csv"))
     figures = sorted(p.name for p in full_run.glob("*.png"))
-    assert "robustness_path_dist_rms.png" in figures and "example_passivity.png" in figures
+    assert {"robustness_path_dist_rms.png", "example_passivity.png", "aggregate.png"} <= set(
+        figures
+    )
     assert sorted(p.name for p in out.glob("*.png")) == figures
     for name in [*figures, "summary.csv", "report.md"]:
         assert (out / name).read_bytes() == (full_run / name).read_bytes(), name
@@ -182,6 +186,8 @@ def test_summary_and_report_do_not_depend_on_the_order_episodes_finished(
         frame.to_csv(folder / "episodes.csv", index=False, float_format="%.17g", na_rep="nan")
         _finish(tiny(tmp_path, name, "seeds=6", "plots=false"), folder, show=False)
         outputs[name] = {f: (folder / f).read_bytes() for f in ("summary.csv", "report.md")}
+        assert not list(folder.glob("*.png"))  # plots=false: no figure, nor the aggregate's
+        assert b"## Aggregate over conditions" in outputs[name]["report.md"]
     assert outputs["sorted"] == outputs["shuffled"]
 
 

@@ -248,11 +248,13 @@ def aggregate(
     out: Path | None,
     resamples: int = 2000,
     seed: int = 0,
+    draw: Callable[..., Any] | None = None,
 ) -> str:
     """The rliable-style aggregate: IQM and mean of :func:`normalized_scores` with stratified
     bootstrap 95% intervals (:func:`stratified_bootstrap`; a markdown table) and, with
-    ``out``, ``aggregate.png`` (the intervals and the performance profiles). Each
-    controller's resamples come from its own generator, derived from ``seed``."""
+    ``out``, ``aggregate.png`` (the intervals and the performance profiles) — drawn by
+    ``draw(function, *args)`` when given (a sweep hands it to its worker processes), else
+    here. Each controller's resamples come from its own generator, derived from ``seed``."""
     scores, tasks = normalized_scores(df, metric)
     scores = {c: s for c, s in scores.items() if np.isfinite(s).all()}
     if not scores:
@@ -273,7 +275,11 @@ def aggregate(
             f"| [{ci[0][1]:.3f}, {ci[1][1]:.3f}] |"
         )
     if out is not None:
-        _aggregate_plot(scores, point, interval, out / "aggregate.png", resamples, seed)
+        args = (scores, point, interval, out / "aggregate.png", resamples, seed)
+        if draw is None:
+            _aggregate_plot(*args)
+        else:
+            draw(_aggregate_plot, *args)
         lines += ["", "![aggregate](aggregate.png)"]
     return "\n".join(lines)
 
@@ -446,8 +452,13 @@ def write_report(
     worst_case: Sequence[str | Path] = (),
     resamples: int = 20_000,
     title: str = "",
+    figures: bool = True,
+    draw: Callable[..., Any] | None = None,
 ) -> Path:
-    """Write ``out/report.md`` (and ``comparisons.csv``, ``aggregate.png``); return its path."""
+    """Write ``out/report.md`` (and ``comparisons.csv``, and with ``figures``
+    ``aggregate.png``, drawn by ``draw`` if given: see :func:`aggregate`); return its path."""
+    # First, so that a ``draw`` handing the figure to other processes overlaps the rest.
+    aggregate_section = aggregate(df, metric, out if figures else None, draw=draw)
     comparisons = paired_comparisons(df, metric, reference, resamples=resamples)
     comparisons.to_csv(out / "comparisons.csv", index=False, float_format="%.17g")
     table = condition_table(df, metric)
@@ -493,7 +504,7 @@ def write_report(
         "",
         "## Aggregate over conditions",
         "",
-        aggregate(df, metric, out),
+        aggregate_section,
         "",
         "## Worst case (adversarial search)",
         "",

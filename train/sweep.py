@@ -295,11 +295,14 @@ def _finish(
     (out / "summary.md").write_text(table + "\n")
     if cfg.plots:
         draw(robustness_plot, summary, cfg.metric, out / f"robustness_{cfg.metric}.png")
-    if pool is not None:  # no more work: the workers exit after their plots, while the
-        pool.shutdown(wait=False)  # report is written (the caller's shutdown joins them)
     from train.report import write_report
 
-    write_report(df, out, cfg.metric, cfg.reference, cfg.worst_case, title=cfg.env_id)
+    write_report(
+        df, out, cfg.metric, cfg.reference, cfg.worst_case, title=cfg.env_id,
+        figures=cfg.plots, draw=draw,
+    )  # fmt: skip
+    if pool is not None:  # no more work: the workers exit after their plots (the caller's
+        pool.shutdown(wait=False)  # shutdown joins them)
     if show:
         print(table)
     for fut in plots:
