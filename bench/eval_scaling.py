@@ -7,17 +7,22 @@ it is not a power of two), each into a temporary folder, in one run. It prints e
 count's wall time, episodes/s, speed-up over one worker and parallel efficiency
 (speed-up / workers), and the speed-up of the episodes alone: the sweep's serial tail
 (summary, bootstrap intervals, report; about 1 s, the same for every count) timed by
-running it once more and taken out. Process start-up is included in both: it is part of
-what a user waits for.
+running it once more and taken out. Worker-process start-up is included in both: it is
+part of what a user waits for. Each count runs ``--repeats`` times, the counts alternating
+(1, 2, …, 1, 2, …), and the table gives each count's median wall time: single timings
+of the small sweep on this 2-core VM spread by ±3% (its 2-worker speed-up 1.77–1.87 in
+five runs of one worker count each).
 
-Run: ``python bench/eval_scaling.py [--seeds 24] [--episode-s 8] [--max-workers N]
-[--config train/configs/main.yml]`` (``--config``: that sweep instead, plots off).
+Run: ``python bench/eval_scaling.py [--seeds 24] [--episode-s 8] [--repeats 3]
+[--max-workers N] [--config train/configs/main.yml]`` (``--config``: that sweep instead,
+plots off).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import tempfile
 import time
 from pathlib import Path
@@ -64,6 +69,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=24)
     parser.add_argument("--episode-s", type=float, default=8.0)
+    parser.add_argument("--repeats", type=int, default=3, help="timings per worker count")
     parser.add_argument(
         "--max-workers", type=int, default=None, help="default: the cores this process may use"
     )
@@ -72,13 +78,24 @@ def main() -> None:
     )
     args = parser.parse_args()
     cores = args.max_workers or len(os.sched_getaffinity(0))
-    rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for workers in worker_counts(cores):
-            wall, tail, n = sweep_seconds(
-                workers, args.seeds, args.episode_s, Path(tmp), args.config
-            )
-            rows.append((workers, n, wall, tail))
+    counts = worker_counts(cores)
+    timings: dict[int, list[tuple[float, float, int]]] = {w: [] for w in counts}
+    for repeat in range(args.repeats):
+        for workers in counts:  # alternating: a load change hits every count alike
+            with tempfile.TemporaryDirectory() as tmp:
+                timings[workers].append(
+                    sweep_seconds(workers, args.seeds, args.episode_s, Path(tmp), args.config)
+                )
+            print(f"repeat {repeat + 1}, {workers} workers: {timings[workers][-1][0]:.1f} s")
+    rows = [
+        (
+            w,
+            timings[w][0][2],
+            statistics.median(t[0] for t in timings[w]),
+            statistics.median(t[1] for t in timings[w]),
+        )
+        for w in counts
+    ]
     base, base_tail = rows[0][2], rows[0][3]
     print(f"cores available: {len(os.sched_getaffinity(0))}")
     print(
