@@ -24,8 +24,8 @@ time; it sets ``torch.set_num_threads(1)``.
 ``--learners`` measures instead the learners the RL study chose between, on the pure env
 with the kernel reward (same rounds and medians): SB3 SAC with [256, 256] and [64, 64]
 networks, sb3-contrib's TQC [64, 64] (when installed: the ``zoo`` extra brings it), SB3
-PPO with 8 envs in a DummyVecEnv, and sbx's JAX SAC [64, 64] when ``sbx`` is installed
-(it is not a dependency: a row says so when it is missing).
+PPO with 8 envs in a DummyVecEnv, and sbx's JAX SAC [64, 64] (``train.train --backend sbx``;
+the optional ``sbx`` extra: a row says so when it is missing).
 """
 
 from __future__ import annotations
@@ -121,9 +121,11 @@ def learner_steps_per_s(label: str, env_id: str, steps: int, warmup: int, seed: 
     env = gym.make(env_id, **kw)
     net = [256, 256] if "256" in label else [64, 64]
     if label.startswith("sbx"):
-        from sbx import SAC as SbxSAC  # optional: a JAX port
+        from train.sb3_runs import algo_class  # train.train's --backend sbx (one XLA thread)
 
-        model = SbxSAC("MlpPolicy", env, policy_kwargs={"net_arch": net}, seed=seed, **off_policy)
+        model = algo_class("sac", "sbx")(
+            "MlpPolicy", env, policy_kwargs={"net_arch": net}, seed=seed, **off_policy
+        )
     elif label.startswith("sb3-contrib TQC"):
         from sb3_contrib import TQC
 

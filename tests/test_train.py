@@ -338,7 +338,8 @@ def test_to_argv_round_trips_every_field(tmp_path: Path) -> None:
     from train.train import to_argv
 
     cfg = TrainConfig(
-        out=str(tmp_path / "r"), algo="td3", residual="computed_torque", scale_fraction=0.2,
+        out=str(tmp_path / "r"), algo="td3", backend="sbx", residual="computed_torque",
+        scale_fraction=0.2,
         disturbance="impulse:0.5", eval_disturbance="none", steps=123, seed=7,
         overrides={"learning_starts": 0, "policy_kwargs": "dict(net_arch=[8])"}, n_envs=2,
         vec_normalize=False, eval_freq=0, checkpoint_freq=50, resume=True,

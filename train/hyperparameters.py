@@ -25,7 +25,7 @@ from torch import nn
 
 from ptrack_gym.errors import InvalidConfigError
 from train import config_files
-from train.sb3_runs import ALGOS
+from train.sb3_runs import algo_class
 
 #: The packaged hyperparameter files, ``<algo>.yml``.
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
@@ -140,7 +140,9 @@ def _allowed_keys(algo_cls: type[BaseAlgorithm]) -> set[str]:
     return params | set(SPECIAL_KEYS)
 
 
-def resolve_hyperparams(algo: str, raw: dict[str, Any]) -> tuple[dict[str, Any], dict]:
+def resolve_hyperparams(
+    algo: str, raw: dict[str, Any], backend: str = "sb3"
+) -> tuple[dict[str, Any], dict]:
     """Validate and convert hyperparameters.
 
     Returns ``(algo_kwargs, special)``: the constructor arguments (``policy_kwargs`` and
@@ -148,11 +150,17 @@ def resolve_hyperparams(algo: str, raw: dict[str, Any]) -> tuple[dict[str, Any],
     rates turned into linear schedules from x to 0, lists for ``train_freq`` into
     tuples, ``noise_type``/``noise_std`` into ``action_noise``) and the special keys.
 
+    The keys are checked against the constructor of ``algo`` in ``backend``
+    (:func:`train.sb3_runs.algo_class`): sbx's classes take nearly SB3's arguments.
+
     Raises:
         TrainConfigError: an unknown key (the message lists the known ones) or a value
             that cannot be converted.
     """
-    algo_cls = ALGOS[algo]
+    try:
+        algo_cls = algo_class(algo, backend)
+    except InvalidConfigError as exc:
+        raise TrainConfigError(str(exc)) from None
     allowed = _allowed_keys(algo_cls)
     unknown = sorted(set(raw) - allowed)
     if unknown:

@@ -26,6 +26,50 @@ from ptrack_gym.errors import InvalidConfigError
 #: The algorithms ``--algo`` accepts.
 ALGOS: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "td3": TD3, "ppo": PPO}
 
+#: The learner implementations ``--backend`` accepts: Stable-Baselines3 itself (torch) and
+#: sbx, the SB3 team's JAX port of the same algorithms behind the same interface (the
+#: optional ``sbx`` extra).
+BACKENDS = ("sb3", "sbx")
+
+#: XLA's flags for one compute thread, set (unless the user set XLA_FLAGS) before sbx
+#: imports JAX: the parallelism is across runs, one process per core.
+_XLA_ONE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+
+
+def sbx_available() -> bool:
+    """Whether the optional ``sbx`` extra (sbx-rl, JAX) is installed."""
+    import importlib.util
+
+    return importlib.util.find_spec("sbx") is not None
+
+
+def algo_class(algo: str, backend: str = "sb3") -> type[BaseAlgorithm]:
+    """The model class of ``algo`` ("sac", "td3", "ppo") in ``backend`` ("sb3", "sbx"): an
+    SB3 ``BaseAlgorithm`` either way (sbx's classes subclass SB3's, so callbacks,
+    ``VecNormalize``, checkpoints and ``predict`` are SB3's).
+
+    Raises:
+        InvalidConfigError: an unknown algorithm or backend, or sbx without its extra.
+    """
+    if algo not in ALGOS:
+        raise InvalidConfigError(f"unknown algo {algo!r}; known: {sorted(ALGOS)}")
+    if backend == "sb3":
+        return ALGOS[algo]
+    if backend != "sbx":
+        raise InvalidConfigError(f"unknown backend {backend!r}; known: {list(BACKENDS)}")
+    if not sbx_available():
+        raise InvalidConfigError(
+            "backend 'sbx' needs the optional 'sbx' extra: pip install 'ptrack_gym[sbx]' "
+            "(install torch first, or pip pulls a CUDA build)"
+        )
+    import os
+
+    os.environ.setdefault("XLA_FLAGS", _XLA_ONE_THREAD)
+    import sbx
+
+    return {"sac": sbx.SAC, "td3": sbx.TD3, "ppo": sbx.PPO}[algo]
+
+
 SB3_PREFIX = "sb3:"
 
 
@@ -118,7 +162,10 @@ def load_sb3_policy(name: str, env_id: str) -> tuple[SB3Policy, dict[str, Any]]:
     run_dir = check_sb3_run(name, env_id)
     _, model_zip, stats_pkl = sb3_files(name)
     cfg = run_config(run_dir)
-    model = ALGOS[cfg["config"]["algo"]].load(str(model_zip), device="cpu")
+    config = cfg["config"]
+    model = algo_class(config["algo"], config.get("backend", "sb3")).load(
+        str(model_zip), device="cpu"
+    )
     if cfg["derived"].get("vec_normalize") and not stats_pkl.exists():
         raise InvalidConfigError(
             f"{name}: the run normalizes observations but {stats_pkl} is missing"

@@ -72,7 +72,7 @@ from train.hyperparameters import (
     parse_set,
     resolve_hyperparams,
 )
-from train.sb3_runs import ALGOS
+from train.sb3_runs import ALGOS, BACKENDS, algo_class
 
 #: ``--residual`` choices: "none" (pure RL) or a base controller name.
 RESIDUAL_CHOICES: tuple[str, ...] = ("none", *CONTROLLER_NAMES)
@@ -100,6 +100,11 @@ class TrainConfig:
     """Run folder: config, checkpoints, final model, logs."""
     algo: str = "sac"
     """Algorithm: "sac", "td3" or "ppo"."""
+    backend: str = "sb3"
+    """Its implementation: "sb3" (Stable-Baselines3, torch) or "sbx" (the SB3 team's JAX port,
+    the optional ``sbx`` extra; the same interface, callbacks and files). The residual
+    safeguards that act on the torch actor (``zero_init_residual``, ``init_log_std``,
+    ``critic_warmup_steps``) are sb3's only."""
     env_id: str = "ptrack_gym/TwoLinkTrack-v0"
     """A ptrack_gym env id (``ptrack_gym.ENV_IDS``)."""
     residual: str = "none"
@@ -208,6 +213,23 @@ def validate(cfg: TrainConfig) -> Resolved:
     """
     if cfg.algo not in ALGOS:
         raise TrainConfigError(f"unknown algo {cfg.algo!r}; known: {sorted(ALGOS)}")
+    if cfg.backend not in BACKENDS:
+        raise TrainConfigError(f"unknown backend {cfg.backend!r}; known: {list(BACKENDS)}")
+    if cfg.backend == "sbx":
+        torch_only = [
+            name
+            for name, on in (
+                ("zero_init_residual", cfg.zero_init_residual),
+                ("init_log_std", cfg.init_log_std is not None),
+                ("critic_warmup_steps", cfg.critic_warmup_steps != 0),
+            )
+            if on
+        ]
+        if torch_only:
+            raise TrainConfigError(
+                f"{', '.join(torch_only)}: implemented on SB3's torch actor, not for backend "
+                "'sbx' (use --backend sb3)"
+            )
     if cfg.residual not in RESIDUAL_CHOICES:
         raise TrainConfigError(
             f"unknown residual base {cfg.residual!r}; known: {list(RESIDUAL_CHOICES)}"
@@ -259,7 +281,7 @@ def validate(cfg: TrainConfig) -> Resolved:
     if cfg.eval_episodes < 1 or cfg.torch_threads < 1:
         raise TrainConfigError("eval_episodes and torch_threads must be >= 1")
     raw = load_hyperparams(cfg.algo, cfg.env_id, cfg.hyperparams, cfg.overrides)
-    algo_kwargs, special = resolve_hyperparams(cfg.algo, raw)
+    algo_kwargs, special = resolve_hyperparams(cfg.algo, raw, cfg.backend)
     steps = cfg.steps if cfg.steps is not None else special.get("n_timesteps")
     if steps is None or int(steps) < 1:
         raise TrainConfigError(f"steps must be >= 1 (or n_timesteps in the YAML), got {steps}")
@@ -300,7 +322,7 @@ def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
     if not path.exists():
         return
     saved = yaml.safe_load(path.read_text()).get("config", {})
-    for key in ("algo", "env_id", "residual", "scale_fraction", "start", "episode_s",
+    for key in ("algo", "backend", "env_id", "residual", "scale_fraction", "start", "episode_s",
                 "reward_weights", "reward", "kernel_weights", "max_path_distance", "action_penalty",
                 "gate_rad", "gate_deadband_rad"):  # fmt: skip
         if key in saved and saved[key] != getattr(cfg, key):
@@ -433,6 +455,8 @@ def versions() -> dict[str, str]:
         "scipy",
         "pybullet",
         "PyYAML",
+        "sbx-rl",
+        "jax",
     ):
         try:
             out[pkg] = metadata.version(pkg)
@@ -492,7 +516,7 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
     try:
         if cfg.resume:
             model, train_env = load_checkpoint(
-                ALGOS[cfg.algo], run_dir, train_env, eval_env,
+                algo_class(cfg.algo, cfg.backend), run_dir, train_env, eval_env,
                 res.normalize_kwargs is not None, cfg.device, cfg.tensorboard,
             )  # fmt: skip
         else:
@@ -500,7 +524,7 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
             noise = action_noise(res.special, int(np.prod(train_env.action_space.shape)))
             if noise is not None:
                 kwargs["action_noise"] = noise
-            model = ALGOS[cfg.algo](
+            model = algo_class(cfg.algo, cfg.backend)(
                 env=train_env,
                 tensorboard_log=str(run_dir / "tb") if cfg.tensorboard else None,
                 verbose=cfg.verbose,
@@ -568,6 +592,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Train SAC/TD3/PPO on a ptrack_gym env, pure or residual (docs/rl.md).",
     )
     p.add_argument("--algo", choices=sorted(ALGOS), default=d.algo)
+    p.add_argument(
+        "--backend", choices=BACKENDS, default=d.backend, help="sbx: the JAX port (extra 'sbx')"
+    )
     p.add_argument("--env", dest="env_id", default=d.env_id, help="a ptrack_gym env id")
     p.add_argument("--residual", choices=RESIDUAL_CHOICES, default=d.residual)
     p.add_argument("--scale-fraction", type=float, default=d.scale_fraction)
