@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long heldout clean check-python
+.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small heldout clean check-python
 
 setup: $(STAMP)
 
@@ -94,6 +94,27 @@ rl-gated-eval: setup
 	  done; \
 	done
 	$(PY) -m train.rl_study --runs $(GATED) --out docs/results/rl_deploy_deadband_two_link --episodes 10 --no-progress
+
+# Issue 14 on the iiwa: 10 residual SAC runs (about 30 min on 2 cores), their study, then the
+# same final checkpoints gated at evaluation (the 2-mrad deadband of rl-gated-eval).
+IIWA := runs/rl_study_iiwa
+IIWA_GATED := runs/rl_deploy_iiwa
+rl-iiwa: setup
+	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa.yml --out $(IIWA) --workers 2
+	$(PY) -m train.rl_study --runs $(IIWA) --out docs/results/rl_study_iiwa --episodes 10 --every 20000 --no-progress
+	for src in $(IIWA)/residual-*_s*; do \
+	  b=$$(basename $$src); dst=$(IIWA_GATED)/$${b%_s*}-deploy_s$${b##*_s}; mkdir -p $$dst/checkpoints; \
+	  cp -a $$src/config.yml $$src/command.txt $$src/monitor $$dst/; \
+	  cp -a $$src/checkpoints/rl_model_60000_steps.zip $$src/checkpoints/rl_model_vecnormalize_60000_steps.pkl $$dst/checkpoints/; \
+	  printf 'gate_rad: 0.002\ngate_deadband_rad: 0.002\n' > $$dst/deploy.yml; \
+	done
+	$(PY) -m train.rl_study --runs $(IIWA_GATED) --out docs/results/rl_deploy_iiwa --episodes 10 --no-progress
+
+# The iiwa's second try: the residual's authority 0.01 tau_max instead of 0.1 (6 runs, about
+# 20 min on 2 cores, then the study).
+rl-iiwa-small: setup
+	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa_scale001.yml --out runs/rl_study_iiwa_scale001 --workers 2
+	$(PY) -m train.rl_study --runs runs/rl_study_iiwa_scale001 --out docs/results/rl_study_iiwa_scale001 --episodes 10 --every 20000 --no-progress
 
 lint: setup
 	$(PY) -m ruff check .
