@@ -88,7 +88,7 @@ rl-gated-eval: setup
 	  for pair in rl_ablation_two_link/residual-passivity-penalty0_s$$i:residual-passivity-deploy_s$$i \
 	              rl_study_two_link/residual-computed_torque_s$$i:residual-computed_torque-deploy_s$$i; do \
 	    src=runs/$${pair%%:*}; dst=$(GATED)/$${pair##*:}; mkdir -p $$dst/checkpoints; \
-	    cp -a $$src/config.yml $$src/command.txt $$src/monitor $$dst/; \
+	    cp -a $$src/config.yml $$src/command.txt $$src/versions.json $$src/monitor $$src/model.zip $$src/vecnormalize.pkl $$dst/; \
 	    cp -a $$src/checkpoints/rl_model_60000_steps.zip $$src/checkpoints/rl_model_vecnormalize_60000_steps.pkl $$dst/checkpoints/; \
 	    printf 'gate_rad: 0.002\ngate_deadband_rad: 0.002\n' > $$dst/deploy.yml; \
 	  done; \
@@ -104,7 +104,7 @@ rl-iiwa: setup
 	$(PY) -m train.rl_study --runs $(IIWA) --out docs/results/rl_study_iiwa --episodes 10 --every 20000 --no-progress
 	for src in $(IIWA)/residual-*_s*; do \
 	  b=$$(basename $$src); dst=$(IIWA_GATED)/$${b%_s*}-deploy_s$${b##*_s}; mkdir -p $$dst/checkpoints; \
-	  cp -a $$src/config.yml $$src/command.txt $$src/monitor $$dst/; \
+	  cp -a $$src/config.yml $$src/command.txt $$src/versions.json $$src/monitor $$src/model.zip $$src/vecnormalize.pkl $$dst/; \
 	  cp -a $$src/checkpoints/rl_model_60000_steps.zip $$src/checkpoints/rl_model_vecnormalize_60000_steps.pkl $$dst/checkpoints/; \
 	  printf 'gate_rad: 0.002\ngate_deadband_rad: 0.002\n' > $$dst/deploy.yml; \
 	done
