@@ -235,11 +235,8 @@ def iqm_and_mean(batch: np.ndarray) -> np.ndarray:
     """rliable's ``aggregate_iqm`` (25% trimmed mean of every score) and ``aggregate_mean``
     (mean over tasks of the mean over runs) of each matrix of a batch (B × runs × tasks):
     shape B × 2."""
-    from scipy import stats
-
-    flat = batch.reshape(batch.shape[0], -1)
-    iqm_ = stats.trim_mean(flat, proportiontocut=0.25, axis=1)
-    return np.stack([iqm_, np.mean(np.mean(batch, axis=1), axis=1)], axis=1)
+    per_matrix_iqm = iqm(batch.reshape(batch.shape[0], -1), axis=1)
+    return np.stack([per_matrix_iqm, np.mean(np.mean(batch, axis=1), axis=1)], axis=1)
 
 
 def aggregate(
