@@ -82,15 +82,18 @@ rl-deadband: setup
 # The same 2-mrad deadband put on residuals trained without a gate, at evaluation only (a
 # deploy.yml beside copies of the final checkpoints of rl-study's computed-torque residuals
 # and the penalty ablation's w = 0 passivity residuals; needs both campaigns' runs/).
+# $(call deploy_copy,RUN,DEST): a finished 60 000-step run copied to DEST (final model, its
+# last checkpoint, statistics, config) with a deploy.yml putting the 2-mrad deadband gate on it.
+deploy_copy = mkdir -p $(2)/checkpoints && \
+  cp -a $(1)/config.yml $(1)/command.txt $(1)/versions.json $(1)/monitor $(1)/model.zip $(1)/vecnormalize.pkl $(2)/ && \
+  cp -a $(1)/checkpoints/rl_model_60000_steps.zip $(1)/checkpoints/rl_model_vecnormalize_60000_steps.pkl $(2)/checkpoints/ && \
+  printf 'gate_rad: 0.002\ngate_deadband_rad: 0.002\n' > $(2)/deploy.yml
 GATED := runs/rl_deploy_deadband_two_link
 rl-gated-eval: setup
 	for i in 0 1 2 3 4; do \
 	  for pair in rl_ablation_two_link/residual-passivity-penalty0_s$$i:residual-passivity-deploy_s$$i \
 	              rl_study_two_link/residual-computed_torque_s$$i:residual-computed_torque-deploy_s$$i; do \
-	    src=runs/$${pair%%:*}; dst=$(GATED)/$${pair##*:}; mkdir -p $$dst/checkpoints; \
-	    cp -a $$src/config.yml $$src/command.txt $$src/versions.json $$src/monitor $$src/model.zip $$src/vecnormalize.pkl $$dst/; \
-	    cp -a $$src/checkpoints/rl_model_60000_steps.zip $$src/checkpoints/rl_model_vecnormalize_60000_steps.pkl $$dst/checkpoints/; \
-	    printf 'gate_rad: 0.002\ngate_deadband_rad: 0.002\n' > $$dst/deploy.yml; \
+	    $(call deploy_copy,runs/$${pair%%:*},$(GATED)/$${pair##*:}); \
 	  done; \
 	done
 	$(PY) -m train.rl_study --runs $(GATED) --out docs/results/rl_deploy_deadband_two_link --episodes 10 --no-progress
@@ -103,10 +106,7 @@ rl-iiwa: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa.yml --out $(IIWA) --workers 2
 	$(PY) -m train.rl_study --runs $(IIWA) --out docs/results/rl_study_iiwa --episodes 10 --every 20000 --no-progress
 	for src in $(IIWA)/residual-*_s*; do \
-	  b=$$(basename $$src); dst=$(IIWA_GATED)/$${b%_s*}-deploy_s$${b##*_s}; mkdir -p $$dst/checkpoints; \
-	  cp -a $$src/config.yml $$src/command.txt $$src/versions.json $$src/monitor $$src/model.zip $$src/vecnormalize.pkl $$dst/; \
-	  cp -a $$src/checkpoints/rl_model_60000_steps.zip $$src/checkpoints/rl_model_vecnormalize_60000_steps.pkl $$dst/checkpoints/; \
-	  printf 'gate_rad: 0.002\ngate_deadband_rad: 0.002\n' > $$dst/deploy.yml; \
+	  b=$$(basename $$src); $(call deploy_copy,$$src,$(IIWA_GATED)/$${b%_s*}-deploy_s$${b##*_s}); \
 	done
 	$(PY) -m train.rl_study --runs $(IIWA_GATED) --out docs/results/rl_deploy_iiwa --episodes 10 --no-progress
 
