@@ -77,6 +77,8 @@ def main() -> None:
         "--config", type=Path, default=None, help="time this evaluation config instead"
     )
     args = parser.parse_args()
+    if args.repeats < 1:
+        parser.error(f"--repeats must be >= 1, got {args.repeats}")
     cores = args.max_workers or len(os.sched_getaffinity(0))
     counts = worker_counts(cores)
     timings: dict[int, list[tuple[float, float, int]]] = {w: [] for w in counts}

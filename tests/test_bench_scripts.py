@@ -31,3 +31,14 @@ def test_bench_script_imports_and_parses_its_defaults(path: Path, monkeypatch) -
     assert callable(module.main)
     if hasattr(module, "parse_args"):
         module.parse_args([])
+
+
+def test_eval_scaling_refuses_zero_repeats_before_any_sweep(monkeypatch, capsys) -> None:
+    spec = importlib.util.spec_from_file_location("bench_eval_scaling", BENCH / "eval_scaling.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setattr(module, "sweep_seconds", lambda *a: pytest.fail("a sweep ran"))
+    monkeypatch.setattr(sys, "argv", ["eval_scaling.py", "--repeats", "0"])
+    with pytest.raises(SystemExit) as exc:
+        module.main()
+    assert exc.value.code == 2 and "--repeats must be >= 1" in capsys.readouterr().err
