@@ -8,7 +8,10 @@ to a base controller's torque:
     \\tau = \\tau_{base}(q, \\dot q) + \\mathrm{scale} \\odot a, \\qquad a \\in [-1, 1]^n,
 
 with τ_base = ``controller.step(q, q̇, dt)`` on the env's measured joint state and
-``scale`` (N·m, per joint) a fraction of the torque limits (default 0.1). The inner env
+``scale`` (N·m, per joint) a fraction of the torque limits (default 0.1) or, with
+``scale_accel_rad_s2`` α, an acceleration: scale_j = min(α M_jj(q_home), τ_max,j) — the
+same joint acceleration for every joint at the robot's home configuration (the iiwa's light
+wrist gets 0.01 N·m where 0.1 τ_max would be 4 N·m, ~4 000 rad/s²). The inner env
 receives ``torque_to_action(τ, τ_max)`` — the one conversion every adapter uses — so with
 a = 0 the wrapped env is *bit-identical* to the base controller run standalone through
 :class:`~agents.policy.ControllerPolicy`. The controller is reset with every env reset,
@@ -334,12 +337,14 @@ def make_residual_env(
     action_penalty: float = 0.0,
     gate_rad: float | None = None,
     gate_deadband_rad: float = 0.0,
+    scale_accel_rad_s2: float | None = None,
     **env_kwargs: Any,
 ) -> ResidualWrapper:
     """``gym.make(env_id, **env_kwargs)`` wrapped in a :class:`ResidualWrapper` around
     the default-gain controller ``base`` (one of ``agents.registry.CONTROLLER_NAMES``),
-    with scale = ``scale_fraction`` · τ_max (N·m) and the wrapper's ``action_penalty``,
-    ``gate_rad`` and ``gate_deadband_rad``.
+    with scale = ``scale_fraction`` · τ_max (N·m) — or, with ``scale_accel_rad_s2``, the
+    authority as an acceleration (:func:`residual_scale_nm`) — and the wrapper's
+    ``action_penalty``, ``gate_rad`` and ``gate_deadband_rad``.
 
     ``env_kwargs`` go to ``gym.make`` (env arguments such as ``control_hz``,
     ``disturbance``, and ``max_episode_steps``), which rejects unknown names.
@@ -347,19 +352,50 @@ def make_residual_env(
     Raises:
         InvalidConfigError: (a ``ValueError``) an unknown base or a bad scale fraction.
     """
-    _check_base(base, scale_fraction)
+    _check_base(base, scale_fraction, scale_accel_rad_s2)
     env = gym.make(env_id, **env_kwargs)
     return _wrap(
         env, base, scale_fraction, include_controller_state,
-        action_penalty, gate_rad, gate_deadband_rad,
+        action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2,
     )  # fmt: skip
 
 
-def _check_base(base: str, scale_fraction: float) -> None:
+def _check_base(base: str, scale_fraction: float, scale_accel_rad_s2: float | None) -> None:
     if base not in CONTROLLER_NAMES:
         raise InvalidConfigError(f"unknown base controller {base!r}; known: {CONTROLLER_NAMES}")
     if not (math.isfinite(scale_fraction) and scale_fraction >= 0.0):
         raise InvalidConfigError(f"scale_fraction must be finite and >= 0, got {scale_fraction}")
+    check_scale_accel(scale_accel_rad_s2)
+
+
+def check_scale_accel(scale_accel_rad_s2: float | None) -> None:
+    """Raise :class:`InvalidConfigError` unless ``scale_accel_rad_s2`` is None or a finite
+    real ≥ 0 (rad/s²)."""
+    if scale_accel_rad_s2 is not None and (
+        isinstance(scale_accel_rad_s2, bool)
+        or not isinstance(scale_accel_rad_s2, (int, float))
+        or not (math.isfinite(scale_accel_rad_s2) and scale_accel_rad_s2 >= 0)
+    ):
+        raise InvalidConfigError(
+            f"scale_accel_rad_s2 must be None or finite and >= 0, got {scale_accel_rad_s2!r}"
+        )
+
+
+def residual_scale_nm(
+    env: gym.Env[np.ndarray, np.ndarray],
+    scale_fraction: float = DEFAULT_SCALE_FRACTION,
+    scale_accel_rad_s2: float | None = None,
+) -> FloatArray:
+    """The residual authority per joint (N·m) on ``env``'s robot: ``scale_fraction`` · τ_max,
+    or, with ``scale_accel_rad_s2`` α (rad/s²), min(α M_jj(q_home), τ_max,j) — M the env's
+    nominal mass matrix (kg·m²) at the profile's home configuration, so α is the joint
+    acceleration a full-scale residual commands there on joint j with the others held."""
+    inner = env.unwrapped
+    limits = np.asarray(inner.torque_limits_nm, dtype=np.float64)
+    if scale_accel_rad_s2 is None:
+        return scale_fraction * limits
+    m_diag = np.diag(np.asarray(inner.model.mass_matrix(inner.robot_profile.home())))
+    return np.minimum(scale_accel_rad_s2 * m_diag, limits)
 
 
 def _wrap(
@@ -370,12 +406,13 @@ def _wrap(
     action_penalty: float,
     gate_rad: float | None,
     gate_deadband_rad: float,
+    scale_accel_rad_s2: float | None,
 ) -> ResidualWrapper:
-    """``env`` in a :class:`ResidualWrapper` around the default-gain ``base`` with scale =
-    ``scale_fraction`` · τ_max (N·m); ``env`` is closed if that fails."""
+    """``env`` in a :class:`ResidualWrapper` around the default-gain ``base`` with the
+    scale of :func:`residual_scale_nm`; ``env`` is closed if that fails."""
     try:
-        limits = np.asarray(env.unwrapped.torque_limits_nm, dtype=np.float64)
-        scale_nm = tuple(float(x) for x in scale_fraction * limits)
+        scale = residual_scale_nm(env, scale_fraction, scale_accel_rad_s2)
+        scale_nm = tuple(float(x) for x in scale)
         return ResidualWrapper(
             env, base, scale_nm, include_controller_state,
             action_penalty, gate_rad, gate_deadband_rad,
@@ -404,6 +441,7 @@ def residual_env(
     action_penalty: float = 0.0,
     gate_rad: float | None = None,
     gate_deadband_rad: float = 0.0,
+    scale_accel_rad_s2: float | None = None,
     **env_kwargs: Any,
 ) -> ResidualWrapper:
     """The entry point of the registered residual ids (:func:`register_residual_envs`):
@@ -416,11 +454,11 @@ def residual_env(
     """
     from ptrack_gym.envs.tracking import TrackingEnv
 
-    _check_base(base, scale_fraction)
+    _check_base(base, scale_fraction, scale_accel_rad_s2)
     env = TrackingEnv(robot=robot, **env_kwargs)
     wrapper = _wrap(
         env, base, scale_fraction, include_controller_state,
-        action_penalty, gate_rad, gate_deadband_rad,
+        action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2,
     )  # fmt: skip
     wrapper._registered = True
     return wrapper

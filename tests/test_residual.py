@@ -15,8 +15,14 @@ from agents.base import Controller
 from agents.passivity import PassivityGains
 from agents.policy import ControllerPolicy, torque_to_action
 from agents.registry import CONTROLLER_NAMES, make_controller
-from agents.residual import DEFAULT_SCALE_FRACTION, ResidualWrapper, make_residual_env
+from agents.residual import (
+    DEFAULT_SCALE_FRACTION,
+    ResidualWrapper,
+    make_residual_env,
+    residual_env,
+)
 from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.robots.model import BulletModel
 
 TWO_LINK = "ptrack_gym/TwoLinkTrack-v0"
 #: A short episode at the training rate for TwoLink: 250 Hz, 0.4 s.
@@ -98,6 +104,43 @@ def test_residual_torque_adds_scale_times_clipped_action(make_env) -> None:
     np.testing.assert_array_equal(info["tau_residual_nm"], expected_res)
     applied = torque_to_action(info["tau_base_nm"] + expected_res, limits).astype(np.float64)
     np.testing.assert_array_equal(info["tau_nm"], applied * limits)
+
+
+def test_acceleration_authority_is_alpha_times_the_home_inertia_capped_at_the_limits(
+    make_env,
+) -> None:
+    """scale_accel_rad_s2 α: scale_j = min(α M_jj(q_home), τ_max,j), M checked against
+    PyBullet's own mass matrix (an independent computation); the torque is scale ⊙ a."""
+    env = make_env.track(
+        make_residual_env(
+            "ptrack_gym/IiwaTrack-v0", "passivity", scale_accel_rad_s2=10.0,
+            control_hz=500.0, max_episode_steps=10,
+        )
+    )  # fmt: skip
+    profile = env.unwrapped.robot_profile
+    reference = BulletModel(profile)
+    try:
+        m_home = np.diag(reference.mass_matrix(profile.home()))
+    finally:
+        reference.close()
+    limits = env.unwrapped.torque_limits_nm
+    assert np.all(10.0 * m_home < limits)  # no cap here: every joint gets 10 rad/s²
+    np.testing.assert_allclose(env.scale_nm, 10.0 * m_home, rtol=1e-9)
+    assert env.scale_nm[6] < 0.05 < DEFAULT_SCALE_FRACTION * limits[6]  # the light wrist
+    env.reset(seed=0)
+    a = np.linspace(-1.0, 1.0, 7)
+    _, _, _, _, info = env.step(a.astype(np.float32))
+    np.testing.assert_array_equal(info["tau_residual_nm"], env.scale_nm * a.astype(np.float32))
+    # A large α is capped at the torque limits, joint by joint; the registered entry point
+    # takes the same argument.
+    big = make_env.track(residual_env("two_link", "computed_torque", scale_accel_rad_s2=1e3))
+    np.testing.assert_array_equal(big.scale_nm, big.unwrapped.torque_limits_nm)
+
+
+@pytest.mark.parametrize("alpha", [-1.0, float("nan"), float("inf"), True, "10"])
+def test_bad_acceleration_authority_is_refused(alpha: object) -> None:
+    with pytest.raises(InvalidConfigError, match="scale_accel_rad_s2"):
+        make_residual_env(TWO_LINK, "passivity", scale_accel_rad_s2=alpha, **SHORT)
 
 
 @pytest.mark.parametrize("base", CONTROLLER_NAMES)

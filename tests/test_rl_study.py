@@ -193,6 +193,30 @@ def test_a_deadband_run_is_evaluated_with_its_deadband(
         assert ungated["path_dist_rms"] != base["path_dist_rms"]  # the run's policy does act
 
 
+def test_a_run_is_evaluated_with_its_acceleration_authority(study: Path, tmp_path: Path) -> None:
+    """The evaluation env takes the run's scale_accel_rad_s2: at α = 0 the residual has no
+    authority, so the run's episode is its base's, metric for metric (the run itself acts)."""
+    from train.episode import EpisodeSettings, Task, run_episode
+
+    run = tmp_path / "accel0"
+    shutil.copytree(study / "residual-passivity_s0", run)
+    cfg_file = run / "config.yml"
+    cfg = yaml.safe_load(cfg_file.read_text())
+    cfg["config"]["scale_accel_rad_s2"] = 0.0
+    cfg_file.write_text(yaml.safe_dump(cfg))
+    settings = EpisodeSettings(
+        env_id="ptrack_gym/TwoLinkTrack-v0", episode_s=1.0, control_hz=250.0,
+        start="on_path", failure_distance_rad=0.5, recovery_threshold_rad=0.01,
+    )  # fmt: skip
+    learned, _ = run_episode(Task(f"sb3:{run}", "impulse", 1.0, 1, 0), settings)
+    base, _ = run_episode(Task("passivity", "impulse", 1.0, 1, 0), settings)
+    for key in ("path_dist_rms", "path_dist_max", "time_err_rms", "tau_dyn_rms_frac"):
+        assert learned[key] == base[key]
+    plain = f"sb3:{study / 'residual-passivity_s0'}"
+    acting, _ = run_episode(Task(plain, "impulse", 1.0, 1, 0), settings)
+    assert acting["path_dist_rms"] != base["path_dist_rms"]
+
+
 @pytest.mark.parametrize(
     ("run", "text", "match"),
     [

@@ -310,6 +310,24 @@ def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
     env.close()
 
 
+def test_acceleration_authority_reaches_the_training_env(tmp_path: Path) -> None:
+    """--scale-accel-rad-s2 replaces --scale-fraction: the wrapper's scale is α M_jj(home)."""
+    from train.train import _env_factory
+
+    res = validate(
+        parse_args(argv(tmp_path / "a", "sac", "computed_torque", 10,
+                        "--scale-accel-rad-s2", "10"))
+    )  # fmt: skip
+    assert res.residual_kwargs == {"scale_accel_rad_s2": 10.0}
+    env = _env_factory(res, "none")()
+    try:
+        u = env.unwrapped
+        m_home = np.diag(u.model.mass_matrix(u.robot_profile.home()))
+        np.testing.assert_array_equal(env.scale_nm, np.minimum(10.0 * m_home, u.torque_limits_nm))
+    finally:
+        env.close()
+
+
 @pytest.mark.parametrize(
     "extra",
     [
@@ -325,6 +343,9 @@ def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
         ["--critic-warmup-steps", "-1"],
         ["--reward", "kernel", "--kernel-weights", "0", "0", "0"],
         ["--max-path-distance", "-0.1"],
+        ["--residual", "none", "--scale-accel-rad-s2", "10"],
+        ["--scale-accel-rad-s2", "-1"],
+        ["--scale-accel-rad-s2", "nan"],
     ],
 )
 def test_bad_safeguard_options_raise_before_anything_runs(tmp_path: Path, extra: list[str]) -> None:
@@ -339,7 +360,7 @@ def test_to_argv_round_trips_every_field(tmp_path: Path) -> None:
 
     cfg = TrainConfig(
         out=str(tmp_path / "r"), algo="td3", backend="sbx", residual="computed_torque",
-        scale_fraction=0.2,
+        scale_fraction=0.2, scale_accel_rad_s2=10.0,
         disturbance="impulse:0.5", eval_disturbance="none", steps=123, seed=7,
         overrides={"learning_starts": 0, "policy_kwargs": "dict(net_arch=[8])"}, n_envs=2,
         vec_normalize=False, eval_freq=0, checkpoint_freq=50, resume=True,

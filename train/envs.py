@@ -85,7 +85,8 @@ def build_env(
 ) -> gym.Env[Any, Any]:
     """One training or evaluation env: ``gym.make`` (``residual="none"``) or the residual
     wrapper around the default-gain controller ``residual`` (``residual_kwargs``: the
-    wrapper's ``action_penalty``, ``gate_rad``); ``extra`` as in :func:`env_kwargs`."""
+    wrapper's ``action_penalty``, ``gate_rad``, ``gate_deadband_rad`` and
+    ``scale_accel_rad_s2``); ``extra`` as in :func:`env_kwargs`."""
     kwargs = env_kwargs(control_hz, max_episode_steps, start, disturbance, reward_weights, extra)
     if residual == "none":
         return gym.make(env_id, **kwargs)

@@ -199,6 +199,7 @@ def _sb3_env_and_policy(
                 "action_penalty": float(c.get("action_penalty", 0.0)),
                 "gate_rad": c.get("gate_rad"),
                 "gate_deadband_rad": float(c.get("gate_deadband_rad", 0.0)),
+                "scale_accel_rad_s2": c.get("scale_accel_rad_s2"),
                 **deploy_safeguards(sb3_files(controller)[0]),  # deploy.yml's gate wins
             }
             if c["residual"] != "none"

@@ -52,7 +52,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 from torch import nn
 
 from agents.registry import CONTROLLER_NAMES
-from agents.residual import check_safeguards
+from agents.residual import check_safeguards, check_scale_accel
 from ptrack_gym.envs.rewards import REWARD_MODES
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
@@ -111,6 +111,10 @@ class TrainConfig:
     """"none" for pure RL, or the base controller of a residual policy (agents.registry)."""
     scale_fraction: float = 0.1
     """Residual authority: scale = scale_fraction · τ_max per joint (N·m)."""
+    scale_accel_rad_s2: float | None = None
+    """Residual only: the authority as an acceleration α (rad/s²) instead of
+    ``scale_fraction``: scale_j = min(α M_jj(q_home), τ_max,j) (N·m;
+    ``agents.residual.residual_scale_nm``)."""
     disturbance: str = "none"
     """Training disturbance: "none", a preset ("impulse") or "preset:level" ("push:0.5")."""
     eval_disturbance: str | None = None
@@ -249,6 +253,13 @@ def validate(cfg: TrainConfig) -> Resolved:
             "gate_rad": cfg.gate_rad,
             "gate_deadband_rad": cfg.gate_deadband_rad,
         }
+    if cfg.scale_accel_rad_s2 is not None:
+        if cfg.residual == "none":
+            raise TrainConfigError("scale_accel_rad_s2 needs a residual base")
+        try:
+            check_scale_accel(cfg.scale_accel_rad_s2)
+        except InvalidConfigError as exc:
+            raise TrainConfigError(str(exc)) from None
     if cfg.critic_warmup_steps < 0:
         raise TrainConfigError(f"critic_warmup_steps must be >= 0, got {cfg.critic_warmup_steps}")
     if cfg.critic_warmup_steps and cfg.algo == "ppo":
@@ -302,6 +313,8 @@ def validate(cfg: TrainConfig) -> Resolved:
         _check_resume_compatible(cfg, run_dir)
     elif (run_dir / "config.yml").exists():
         raise TrainConfigError(f"{run_dir} already holds a run; use --resume or a new --out")
+    if cfg.scale_accel_rad_s2 is not None:  # the wrapper computes the scale from its robot
+        residual_kwargs = {**residual_kwargs, "scale_accel_rad_s2": cfg.scale_accel_rad_s2}
     return Resolved(
         cfg,
         profile.name,
@@ -322,9 +335,10 @@ def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
     if not path.exists():
         return
     saved = yaml.safe_load(path.read_text()).get("config", {})
-    for key in ("algo", "backend", "env_id", "residual", "scale_fraction", "start", "episode_s",
-                "reward_weights", "reward", "kernel_weights", "max_path_distance", "action_penalty",
-                "gate_rad", "gate_deadband_rad"):  # fmt: skip
+    for key in ("algo", "backend", "env_id", "residual", "scale_fraction", "scale_accel_rad_s2",
+                "start", "episode_s", "reward_weights", "reward", "kernel_weights",
+                "max_path_distance", "action_penalty", "gate_rad",
+                "gate_deadband_rad"):  # fmt: skip
         if key in saved and saved[key] != getattr(cfg, key):
             raise TrainConfigError(
                 f"--resume: {key}={getattr(cfg, key)!r} differs from the run's {saved[key]!r}"
@@ -598,6 +612,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env", dest="env_id", default=d.env_id, help="a ptrack_gym env id")
     p.add_argument("--residual", choices=RESIDUAL_CHOICES, default=d.residual)
     p.add_argument("--scale-fraction", type=float, default=d.scale_fraction)
+    p.add_argument(
+        "--scale-accel-rad-s2", type=float, default=None,
+        help="residual authority as an acceleration (rad/s^2), instead of --scale-fraction",
+    )  # fmt: skip
     p.add_argument("--disturbance", default=d.disturbance, help="none | preset | preset:level")
     p.add_argument("--eval-disturbance", default=None, help="default: --disturbance")
     p.add_argument("--steps", type=int, default=None, help="default: the YAML's n_timesteps")
