@@ -100,11 +100,16 @@ _BASE_RATIO_BOUND = 2.0
 
 
 def check_safeguards(
-    action_penalty: float, gate_rad: float | None, gate_deadband_rad: float = 0.0
+    action_penalty: float,
+    gate_rad: float | None,
+    gate_deadband_rad: float = 0.0,
+    scale_accel_rad_s2: float | None = None,
 ) -> None:
     """Raise :class:`InvalidConfigError` unless ``action_penalty`` is a finite real ≥ 0,
-    ``gate_rad`` is None or a finite real > 0 (rad), and ``gate_deadband_rad`` is a finite
-    real ≥ 0 (rad) that is 0 unless a gate is set."""
+    ``gate_rad`` is None or a finite real > 0 (rad), ``gate_deadband_rad`` is a finite
+    real ≥ 0 (rad) that is 0 unless a gate is set, and ``scale_accel_rad_s2`` is None or a
+    finite real ≥ 0 (rad/s²)."""
+    _check_scale_accel(scale_accel_rad_s2)
     if (
         isinstance(action_penalty, bool)
         or not (isinstance(action_penalty, (int, float)) and math.isfinite(action_penalty))
@@ -365,12 +370,10 @@ def _check_base(base: str, scale_fraction: float, scale_accel_rad_s2: float | No
         raise InvalidConfigError(f"unknown base controller {base!r}; known: {CONTROLLER_NAMES}")
     if not (math.isfinite(scale_fraction) and scale_fraction >= 0.0):
         raise InvalidConfigError(f"scale_fraction must be finite and >= 0, got {scale_fraction}")
-    check_scale_accel(scale_accel_rad_s2)
+    _check_scale_accel(scale_accel_rad_s2)
 
 
-def check_scale_accel(scale_accel_rad_s2: float | None) -> None:
-    """Raise :class:`InvalidConfigError` unless ``scale_accel_rad_s2`` is None or a finite
-    real ≥ 0 (rad/s²)."""
+def _check_scale_accel(scale_accel_rad_s2: float | None) -> None:
     if scale_accel_rad_s2 is not None and (
         isinstance(scale_accel_rad_s2, bool)
         or not isinstance(scale_accel_rad_s2, (int, float))

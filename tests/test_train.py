@@ -298,6 +298,7 @@ def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
         "action_penalty": 0.05,
         "gate_rad": 0.02,
         "gate_deadband_rad": 0.0,
+        "scale_accel_rad_s2": None,
     }
     from train.train import _env_factory
 
@@ -318,7 +319,10 @@ def test_acceleration_authority_reaches_the_training_env(tmp_path: Path) -> None
         parse_args(argv(tmp_path / "a", "sac", "computed_torque", 10,
                         "--scale-accel-rad-s2", "10"))
     )  # fmt: skip
-    assert res.residual_kwargs == {"scale_accel_rad_s2": 10.0}
+    assert res.residual_kwargs == {
+        "action_penalty": 0.0, "gate_rad": None, "gate_deadband_rad": 0.0,
+        "scale_accel_rad_s2": 10.0,
+    }  # fmt: skip
     env = _env_factory(res, "none")()
     try:
         u = env.unwrapped

@@ -37,7 +37,7 @@ from agents.policy import ControllerPolicy
 from agents.registry import make_controller
 from ptrack_gym.errors import ControllerDivergedError
 from ptrack_gym.metrics import EpisodeRecord, episode_metrics
-from train.envs import build_env, env_kwargs
+from train.envs import build_env, env_kwargs, residual_wrapper_kwargs
 
 #: Columns identifying an episode, in the CSV's order.
 KEY_COLUMNS: tuple[str, ...] = ("controller", "disturbance", "level", "seed", "episode")
@@ -196,10 +196,7 @@ def _sb3_env_and_policy(
             _disturbance_text(disturbance, level),
             extra=path_kwargs(settings),
             residual_kwargs={  # the gate acts on the torque; the penalty only on the reward
-                "action_penalty": float(c.get("action_penalty", 0.0)),
-                "gate_rad": c.get("gate_rad"),
-                "gate_deadband_rad": float(c.get("gate_deadband_rad", 0.0)),
-                "scale_accel_rad_s2": c.get("scale_accel_rad_s2"),
+                **residual_wrapper_kwargs(c),
                 **deploy_safeguards(sb3_files(controller)[0]),  # deploy.yml's gate wins
             }
             if c["residual"] != "none"

@@ -52,7 +52,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 from torch import nn
 
 from agents.registry import CONTROLLER_NAMES
-from agents.residual import check_safeguards, check_scale_accel
+from agents.residual import check_safeguards
 from ptrack_gym.envs.rewards import REWARD_MODES
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
@@ -63,7 +63,13 @@ from train.checkpoints import (
     load_checkpoint,
     save_final,
 )
-from train.envs import build_env, check_env_kwargs, env_kwargs
+from train.envs import (
+    WRAPPER_DEFAULTS,
+    build_env,
+    check_env_kwargs,
+    env_kwargs,
+    residual_wrapper_kwargs,
+)
 from train.hyperparameters import (
     TrainConfigError,
     action_noise,
@@ -242,24 +248,11 @@ def validate(cfg: TrainConfig) -> Resolved:
         raise TrainConfigError(f"scale_fraction must be >= 0, got {cfg.scale_fraction}")
     if not (math.isfinite(cfg.episode_s) and cfg.episode_s > 0):
         raise TrainConfigError(f"episode_s must be positive, got {cfg.episode_s}")
-    residual_kwargs: dict[str, Any] = {}
-    if cfg.action_penalty != 0.0 or cfg.gate_rad is not None or cfg.gate_deadband_rad != 0.0:
-        if cfg.residual == "none":
-            raise TrainConfigError(
-                "action_penalty, gate_rad and gate_deadband_rad need a residual base"
-            )
-        residual_kwargs = {
-            "action_penalty": cfg.action_penalty,
-            "gate_rad": cfg.gate_rad,
-            "gate_deadband_rad": cfg.gate_deadband_rad,
-        }
-    if cfg.scale_accel_rad_s2 is not None:
-        if cfg.residual == "none":
-            raise TrainConfigError("scale_accel_rad_s2 needs a residual base")
-        try:
-            check_scale_accel(cfg.scale_accel_rad_s2)
-        except InvalidConfigError as exc:
-            raise TrainConfigError(str(exc)) from None
+    residual_kwargs = residual_wrapper_kwargs(dataclasses.asdict(cfg))
+    if cfg.residual == "none":
+        if residual_kwargs != WRAPPER_DEFAULTS:
+            raise TrainConfigError(f"{', '.join(WRAPPER_DEFAULTS)} need a residual base")
+        residual_kwargs = {}
     if cfg.critic_warmup_steps < 0:
         raise TrainConfigError(f"critic_warmup_steps must be >= 0, got {cfg.critic_warmup_steps}")
     if cfg.critic_warmup_steps and cfg.algo == "ppo":
@@ -313,8 +306,6 @@ def validate(cfg: TrainConfig) -> Resolved:
         _check_resume_compatible(cfg, run_dir)
     elif (run_dir / "config.yml").exists():
         raise TrainConfigError(f"{run_dir} already holds a run; use --resume or a new --out")
-    if cfg.scale_accel_rad_s2 is not None:  # the wrapper computes the scale from its robot
-        residual_kwargs = {**residual_kwargs, "scale_accel_rad_s2": cfg.scale_accel_rad_s2}
     return Resolved(
         cfg,
         profile.name,
