@@ -136,6 +136,57 @@ def test_resume_continues_steps_replay_buffer_and_statistics(tmp_path: Path) -> 
         run(parse_args(argv(out, "sac", "passivity", 100)))
 
 
+def test_an_interrupted_run_saves_the_steps_it_took_and_resumes_from_them(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C (KeyboardInterrupt) 40 steps into a resumed run: model.zip and a checkpoint
+    (replay buffer, statistics) at 140 — not the stale 100 of the finished run — and the
+    interruption re-raised; --resume goes on from 140."""
+    import gymnasium as gym
+
+    import train.train as tt
+
+    out = tmp_path / "run"
+    main(argv(out, "sac", "passivity", 100, "--eval-freq", "0"))
+    assert SAC.load(out / "model.zip").num_timesteps == 100
+
+    class CtrlC(gym.Wrapper):
+        def step(self, action):  # type: ignore[no-untyped-def]
+            self.steps = getattr(self, "steps", 0) + 1
+            if self.steps == 40:
+                raise KeyboardInterrupt
+            return self.env.step(action)
+
+    real = tt.build_env
+    monkeypatch.setattr(tt, "build_env", lambda *a, **k: CtrlC(real(*a, **k)))
+    with pytest.raises(KeyboardInterrupt):
+        main(argv(out, "sac", "passivity", 100, "--eval-freq", "0", "--resume"))
+    monkeypatch.setattr(tt, "build_env", real)
+    saved = SAC.load(out / "model.zip")
+    assert saved.num_timesteps == 139  # the 40th step raised before it counted
+    ckpt = out / "checkpoints"
+    assert (ckpt / "rl_model_139_steps.zip").is_file()
+    assert (ckpt / "rl_model_replay_buffer_139_steps.pkl").is_file()
+    assert (ckpt / "rl_model_vecnormalize_139_steps.pkl").is_file()
+    resumed = run(parse_args(argv(out, "sac", "passivity", 61, "--eval-freq", "0", "--resume")))
+    assert resumed.num_timesteps == 200
+    assert resumed.model.replay_buffer.size() == 200  # every counted step is in the buffer
+
+
+def test_sigterm_is_an_interruption_under_the_cli() -> None:
+    import signal
+
+    from train.train import interrupt_on_sigterm
+
+    previous = signal.getsignal(signal.SIGTERM)
+    try:
+        interrupt_on_sigterm()
+        with pytest.raises(KeyboardInterrupt):
+            signal.raise_signal(signal.SIGTERM)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 @pytest.mark.parametrize(
     ("extra", "match"),
     [

@@ -111,8 +111,9 @@ def plan(cfg: TrainConfig) -> TrainConfig | None:
 def _train_one(cfg: TrainConfig) -> tuple[str, str | None]:
     """Train one run; its ``command.txt`` records the standalone ``python -m train.train``
     command of this invocation (:func:`train.train.to_argv`)."""
-    from train.train import run, to_argv
+    from train.train import interrupt_on_sigterm, run, to_argv
 
+    interrupt_on_sigterm()  # Pool.terminate's SIGTERM: the run saves where it got to
     try:
         run(cfg, argv=to_argv(cfg))
     except Exception:  # reported, never silently dropped

@@ -20,7 +20,10 @@ hyperparameters), ``command.txt`` (one line per invocation), ``versions.json``,
 ``eval/`` and ``monitor/`` (per invocation), ``tb/`` (``--tensorboard``) and
 ``checkpoints/rl_model_<steps>_steps.zip`` with the matching VecNormalize statistics and,
 for the newest checkpoint only, the replay buffer (the final state is always saved there
-too, so ``--resume`` can continue any finished or interrupted run).
+too, so ``--resume`` can continue any finished or interrupted run). An interrupted run —
+Ctrl-C, or SIGTERM — saves ``model.zip`` and a checkpoint at the step it reached before it
+exits (nothing trained is lost, and ``model.zip`` is never older than the newest
+checkpoint), then re-raises ``KeyboardInterrupt``.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ import json
 import math
 import platform
 import shlex
+import signal
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -574,13 +578,19 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
                     verbose=cfg.verbose,
                 )
             )
-        model.learn(
-            total_timesteps=res.steps,
-            callback=callbacks,
-            reset_num_timesteps=not cfg.resume,
-            tb_log_name=cfg.algo,
-            progress_bar=cfg.progress_bar,
-        )
+        try:
+            model.learn(
+                total_timesteps=res.steps,
+                callback=callbacks,
+                reset_num_timesteps=not cfg.resume,
+                tb_log_name=cfg.algo,
+                progress_bar=cfg.progress_bar,
+            )
+        except KeyboardInterrupt:
+            # Ctrl-C (or SIGTERM, see interrupt_on_sigterm): keep every step taken, as
+            # rl-zoo3 does — model.zip and a checkpoint at this step; --resume goes on.
+            save_final(model, train_env, run_dir)
+            raise
         save_final(model, train_env, run_dir)
     finally:
         train_env.close()
@@ -697,8 +707,20 @@ def parse_args(argv: Sequence[str] | None = None) -> TrainConfig:
     return TrainConfig(**values)
 
 
+def interrupt_on_sigterm() -> None:
+    """Make SIGTERM raise ``KeyboardInterrupt`` in this process (call from its main
+    thread), so a terminated run saves its state as an interrupted one does: the CLI and
+    the campaign's worker processes (which ``Pool.terminate`` stops with SIGTERM)."""
+
+    def _raise(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    signal.signal(signal.SIGTERM, _raise)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI entry point: parse, train, print where the run went."""
+    interrupt_on_sigterm()
     cfg = parse_args(argv)
     result = run(cfg, argv)
     print(f"trained {result.num_timesteps} steps; run folder: {result.run_dir}")
