@@ -8,10 +8,17 @@ to a base controller's torque:
     \\tau = \\tau_{base}(q, \\dot q) + \\mathrm{scale} \\odot a, \\qquad a \\in [-1, 1]^n,
 
 with τ_base = ``controller.step(q, q̇, dt)`` on the env's measured joint state and
-``scale`` (N·m, per joint) a fraction of the torque limits (default 0.1) or, with
-``scale_accel_rad_s2`` α, an acceleration: scale_j = min(α M_jj(q_home), τ_max,j) — the
-same joint acceleration for every joint at the robot's home configuration (the iiwa's light
-wrist gets 0.01 N·m where 0.1 τ_max would be 4 N·m, ~4 000 rad/s²). The inner env
+``scale`` (N·m, per joint) a fraction of the torque limits (default 0.1). With
+``scale_accel_rad_s2`` α the residual is a joint *acceleration* instead:
+
+.. math::
+
+    \\tau = \\tau_{base}(q, \\dot q) + M(q)\\,\\alpha a, \\qquad a \\in [-1, 1]^n,
+
+M the env's nominal mass matrix at the measured q, so on the nominal plant the residual adds
+exactly α a to q̈ (rad/s²), every joint alike — a fraction of τ_max gives the iiwa's light
+wrist ~4 000 rad/s² (0.1 τ_max) and a per-joint α M_jj(q_home) still moved it 0.36 rad off
+its path through the coupling (measured, docs/rl.md). The inner env
 receives ``torque_to_action(τ, τ_max)`` — the one conversion every adapter uses — so with
 a = 0 the wrapped env is *bit-identical* to the base controller run standalone through
 :class:`~agents.policy.ControllerPolicy`. The controller is reset with every env reset,
@@ -71,8 +78,8 @@ Safeguards (both off by default, so a = 0 stays bit-identical to the base):
   above the base's undisturbed path distance). ``info["residual_gate"]`` is γ.
 
 Info (every step): ``tau_base_nm`` τ_base, ``tau_residual_nm`` γ scale ⊙ clip(a, −1, 1)
-(N·m, before the env's own clipping of the sum to τ_max), ``controller`` the
-controller's ``diagnostics()``; reset's info has ``controller`` too.
+or M(q) γ α clip(a, −1, 1) (N·m, before the env's own clipping of the sum to τ_max),
+``controller`` the controller's ``diagnostics()``; reset's info has ``controller`` too.
 
 :func:`make_residual_env` is the one-call constructor: ``gym.make`` + the default-gain
 controller of :func:`agents.registry.make_controller` + the wrapper.
@@ -204,6 +211,7 @@ class ResidualWrapper(
         action_penalty: float = 0.0,
         gate_rad: float | None = None,
         gate_deadband_rad: float = 0.0,
+        scale_accel_rad_s2: float | None = None,
     ) -> None:
         self._controller_name = controller if isinstance(controller, str) else None
         self._registered = False  # set by residual_env: the spec is the registered one
@@ -216,6 +224,7 @@ class ResidualWrapper(
                 action_penalty=action_penalty,
                 gate_rad=gate_rad,
                 gate_deadband_rad=gate_deadband_rad,
+                scale_accel_rad_s2=scale_accel_rad_s2,
             )
         super().__init__(env)
         u = env.unwrapped
@@ -227,6 +236,10 @@ class ResidualWrapper(
             raise InvalidConfigError(f"controller has {controller.n} joints, env has {self.n}")
         self.controller = controller
         self.torque_limits_nm = np.asarray(u.torque_limits_nm, dtype=np.float64)
+        check_safeguards(action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2)
+        if scale_accel_rad_s2 is not None and scale_nm is not None:
+            raise InvalidConfigError("give scale_nm or scale_accel_rad_s2, not both")
+        self.scale_accel_rad_s2 = None if scale_accel_rad_s2 is None else float(scale_accel_rad_s2)
         if scale_nm is None:
             scale = DEFAULT_SCALE_FRACTION * self.torque_limits_nm
         else:
@@ -238,8 +251,8 @@ class ResidualWrapper(
             scale = np.broadcast_to(raw, (self.n,)).copy()
         if not (np.all(np.isfinite(scale)) and np.all(scale >= 0.0)):
             raise InvalidConfigError(f"scale_nm must be finite and >= 0, got {scale.tolist()}")
-        self.scale_nm = scale
-        check_safeguards(action_penalty, gate_rad, gate_deadband_rad)
+        self.scale_nm: FloatArray | None = None if self.scale_accel_rad_s2 is not None else scale
+        """Torque authority per joint (N·m); None when the residual is an acceleration."""
         self.action_penalty = float(action_penalty)
         self.gate_rad = None if gate_rad is None else float(gate_rad)
         self.gate_deadband_rad = float(gate_deadband_rad)
@@ -294,7 +307,8 @@ class ResidualWrapper(
     def step(
         self, action: np.ndarray
     ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
-        """τ = τ_base + scale ⊙ clip(a, −1, 1) (N·m), applied as ``torque_to_action(τ)``.
+        """τ = τ_base + γ scale ⊙ clip(a, −1, 1) — or τ_base + M(q) γ α clip(a, −1, 1) with
+        ``scale_accel_rad_s2`` — (N·m), applied as ``torque_to_action(τ)``.
 
         Raises:
             InvalidActionError: (a ``ValueError``) ``action`` is not of shape (n,) or has
@@ -317,7 +331,10 @@ class ResidualWrapper(
         if self.gate_rad is not None:
             d = max(u.projector.nearest(q).distance - self.gate_deadband_rad, 0.0)
             gate = -math.expm1(-((d / self.gate_rad) ** 2))  # γ = 1 − exp(−((d − d₀)⁺/d_g)²)
-        tau_res = (gate * self.scale_nm) * a  # (n,) N·m; γ = 1 exactly without a gate
+        if self.scale_nm is not None:
+            tau_res = (gate * self.scale_nm) * a  # (n,) N·m; γ = 1 exactly without a gate
+        else:  # M(q) γ α a: the acceleration α a (rad/s²) on the nominal model (cached M)
+            tau_res = u.model.mass_matrix(q) @ ((gate * self.scale_accel_rad_s2) * a)
         inner_action = torque_to_action(tau_base + tau_res, self.torque_limits_nm)
         obs, reward, terminated, truncated, info = self.env.step(inner_action)
         if self.action_penalty > 0.0:
@@ -347,8 +364,8 @@ def make_residual_env(
 ) -> ResidualWrapper:
     """``gym.make(env_id, **env_kwargs)`` wrapped in a :class:`ResidualWrapper` around
     the default-gain controller ``base`` (one of ``agents.registry.CONTROLLER_NAMES``),
-    with scale = ``scale_fraction`` · τ_max (N·m) — or, with ``scale_accel_rad_s2``, the
-    authority as an acceleration (:func:`residual_scale_nm`) — and the wrapper's
+    with scale = ``scale_fraction`` · τ_max (N·m) — or, with ``scale_accel_rad_s2`` α, the
+    residual M(q) α a (an acceleration, module docstring) — and the wrapper's
     ``action_penalty``, ``gate_rad`` and ``gate_deadband_rad``.
 
     ``env_kwargs`` go to ``gym.make`` (env arguments such as ``control_hz``,
@@ -384,23 +401,6 @@ def _check_scale_accel(scale_accel_rad_s2: float | None) -> None:
         )
 
 
-def residual_scale_nm(
-    env: gym.Env[np.ndarray, np.ndarray],
-    scale_fraction: float = DEFAULT_SCALE_FRACTION,
-    scale_accel_rad_s2: float | None = None,
-) -> FloatArray:
-    """The residual authority per joint (N·m) on ``env``'s robot: ``scale_fraction`` · τ_max,
-    or, with ``scale_accel_rad_s2`` α (rad/s²), min(α M_jj(q_home), τ_max,j) — M the env's
-    nominal mass matrix (kg·m²) at the profile's home configuration, so α is the joint
-    acceleration a full-scale residual commands there on joint j with the others held."""
-    inner = env.unwrapped
-    limits = np.asarray(inner.torque_limits_nm, dtype=np.float64)
-    if scale_accel_rad_s2 is None:
-        return scale_fraction * limits
-    m_diag = np.diag(np.asarray(inner.model.mass_matrix(inner.robot_profile.home())))
-    return np.minimum(scale_accel_rad_s2 * m_diag, limits)
-
-
 def _wrap(
     env: gym.Env[np.ndarray, np.ndarray],
     base: str,
@@ -411,14 +411,17 @@ def _wrap(
     gate_deadband_rad: float,
     scale_accel_rad_s2: float | None,
 ) -> ResidualWrapper:
-    """``env`` in a :class:`ResidualWrapper` around the default-gain ``base`` with the
-    scale of :func:`residual_scale_nm`; ``env`` is closed if that fails."""
+    """``env`` in a :class:`ResidualWrapper` around the default-gain ``base`` with scale =
+    ``scale_fraction`` · τ_max (N·m), or the acceleration authority ``scale_accel_rad_s2``
+    when given; ``env`` is closed if that fails."""
     try:
-        scale = residual_scale_nm(env, scale_fraction, scale_accel_rad_s2)
-        scale_nm = tuple(float(x) for x in scale)
+        limits = np.asarray(env.unwrapped.torque_limits_nm, dtype=np.float64)
+        scale_nm = (
+            tuple(float(x) for x in scale_fraction * limits) if scale_accel_rad_s2 is None else None
+        )
         return ResidualWrapper(
             env, base, scale_nm, include_controller_state,
-            action_penalty, gate_rad, gate_deadband_rad,
+            action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2,
         )  # fmt: skip
     except BaseException:
         env.close()

@@ -122,9 +122,8 @@ class TrainConfig:
     scale_fraction: float = 0.1
     """Residual authority: scale = scale_fraction · τ_max per joint (N·m)."""
     scale_accel_rad_s2: float | None = None
-    """Residual only: the authority as an acceleration α (rad/s²) instead of
-    ``scale_fraction``: scale_j = min(α M_jj(q_home), τ_max,j) (N·m;
-    ``agents.residual.residual_scale_nm``)."""
+    """Residual only: the residual as a joint acceleration instead of ``scale_fraction``:
+    τ_res = M(q) α a, α in rad/s² (``agents.residual``)."""
     disturbance: str = "none"
     """Training disturbance: "none", a preset ("impulse") or "preset:level" ("push:0.5")."""
     eval_disturbance: str | None = None
@@ -615,7 +614,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scale-fraction", type=float, default=d.scale_fraction)
     p.add_argument(
         "--scale-accel-rad-s2", type=float, default=None,
-        help="residual authority as an acceleration (rad/s^2), instead of --scale-fraction",
+        help="the residual as a joint acceleration M(q) alpha a, alpha in rad/s^2",
     )  # fmt: skip
     p.add_argument("--disturbance", default=d.disturbance, help="none | preset | preset:level")
     p.add_argument("--eval-disturbance", default=None, help="default: --disturbance")
