@@ -173,18 +173,17 @@ def test_an_interrupted_run_saves_the_steps_it_took_and_resumes_from_them(
     assert resumed.model.replay_buffer.size() == 200  # every counted step is in the buffer
 
 
-def test_sigterm_is_an_interruption_under_the_cli() -> None:
+def test_sigterm_is_an_interruption_while_a_run_trains_only() -> None:
+    """Inside sigterm_as_interrupt SIGTERM raises KeyboardInterrupt (the run saves); after
+    it the previous handler is back (an idle campaign worker exits quietly)."""
     import signal
 
-    from train.train import interrupt_on_sigterm
+    from train.train import sigterm_as_interrupt
 
     previous = signal.getsignal(signal.SIGTERM)
-    try:
-        interrupt_on_sigterm()
-        with pytest.raises(KeyboardInterrupt):
-            signal.raise_signal(signal.SIGTERM)
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    with pytest.raises(KeyboardInterrupt), sigterm_as_interrupt():
+        signal.raise_signal(signal.SIGTERM)
+    assert signal.getsignal(signal.SIGTERM) is previous
 
 
 @pytest.mark.parametrize(

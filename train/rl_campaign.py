@@ -111,11 +111,11 @@ def plan(cfg: TrainConfig) -> TrainConfig | None:
 def _train_one(cfg: TrainConfig) -> tuple[str, str | None]:
     """Train one run; its ``command.txt`` records the standalone ``python -m train.train``
     command of this invocation (:func:`train.train.to_argv`)."""
-    from train.train import interrupt_on_sigterm, run, to_argv
+    from train.train import run, sigterm_as_interrupt, to_argv
 
-    interrupt_on_sigterm()  # Pool.terminate's SIGTERM: the run saves where it got to
     try:
-        run(cfg, argv=to_argv(cfg))
+        with sigterm_as_interrupt():  # Pool.terminate's SIGTERM: the run saves where it got to
+            run(cfg, argv=to_argv(cfg))
     except Exception:  # reported, never silently dropped
         return cfg.out, traceback.format_exc()
     return cfg.out, None

@@ -29,6 +29,7 @@ checkpoint), then re-raises ``KeyboardInterrupt``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import math
@@ -36,7 +37,7 @@ import platform
 import shlex
 import signal
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from importlib import metadata
@@ -586,7 +587,7 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
                 progress_bar=cfg.progress_bar,
             )
         except KeyboardInterrupt:
-            # Ctrl-C (or SIGTERM, see interrupt_on_sigterm): keep every step taken, as
+            # Ctrl-C (or SIGTERM, see sigterm_as_interrupt): keep every step taken, as
             # rl-zoo3 does — model.zip and a checkpoint at this step; --resume goes on.
             save_final(model, train_env, run_dir)
             raise
@@ -706,22 +707,29 @@ def parse_args(argv: Sequence[str] | None = None) -> TrainConfig:
     return TrainConfig(**values)
 
 
-def interrupt_on_sigterm() -> None:
-    """Make SIGTERM raise ``KeyboardInterrupt`` in this process (call from its main
-    thread), so a terminated run saves its state as an interrupted one does: the CLI and
-    the campaign's worker processes (which ``Pool.terminate`` stops with SIGTERM)."""
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Within the block, SIGTERM raises ``KeyboardInterrupt`` in this process (enter it
+    from the main thread), so a run terminated while it trains saves its state as an
+    interrupted one does: the CLI and the campaign's worker processes (which
+    ``Pool.terminate`` stops with SIGTERM). The previous handler is restored on exit — an
+    idle worker terminated after its run then exits quietly."""
 
     def _raise(signum: int, frame: Any) -> None:
         raise KeyboardInterrupt(f"signal {signum}")
 
-    signal.signal(signal.SIGTERM, _raise)
+    previous = signal.signal(signal.SIGTERM, _raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI entry point: parse, train, print where the run went."""
-    interrupt_on_sigterm()
     cfg = parse_args(argv)
-    result = run(cfg, argv)
+    with sigterm_as_interrupt():
+        result = run(cfg, argv)
     print(f"trained {result.num_timesteps} steps; run folder: {result.run_dir}")
     return 0
 
