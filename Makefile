@@ -125,11 +125,15 @@ rl-iiwa-accel: setup
 	$(PY) -m train.rl_study --runs runs/rl_study_iiwa_accel --out docs/results/rl_study_iiwa_accel --episodes 10 --every 20000 --no-progress
 
 # Pure SAC on the two-link with the sbx backend (make setup installs it, after torch):
-# 5 seeds to 300 000 steps (about 1 h of training on 2 cores), then evaluated
-# every 60 000 steps.
+# 5 seeds to 300 000 steps (about 1 h of training on 2 cores), evaluated every 60 000 steps
+# (~20 min), then the final policies on the three held-out paths (results/heldout_sbx_path*).
+SBX_RUNS := $(foreach s,0 1 2 3 4,"sb3:runs/rl_pure_sbx_two_link/pure-sbx_s$(s)",)
 rl-pure-sbx: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_pure_sbx_two_link.yml --out runs/rl_pure_sbx_two_link --workers 2
 	$(PY) -m train.rl_study --runs runs/rl_pure_sbx_two_link --out docs/results/rl_pure_sbx_two_link --episodes 10 --every 60000 --no-progress
+	for k in 1 2 3; do $(PY) -m train.evaluate --config train/configs/heldout_paths_rl.yml --set path_seed=$$k \
+	  --set 'controllers=[pd_gravity, computed_torque, $(SBX_RUNS)]' --set 'disturbances=[none, impulse]' \
+	  --set reference=pd_gravity --out results/heldout_sbx_path$$k --no-progress || exit 1; done
 
 lint: setup
 	$(PY) -m ruff check .
