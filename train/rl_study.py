@@ -64,7 +64,7 @@ SHARED_KEYS = ("algo", "env_id", "disturbance", "episode_s", "start")
 GROUP_KEYS = (
     "reward_weights", "reward", "kernel_weights", "max_path_distance", "hyperparams",
     "overrides", "scale_fraction", "scale_accel_rad_s2", "zero_init_residual", "action_penalty",
-    "gate_rad", "gate_deadband_rad", "init_log_std", "critic_warmup_steps",
+    "gate_rad", "gate_deadband_rad", "init_log_std", "critic_warmup_steps", "actor_lr_scale",
 )  # fmt: skip
 
 #: The presets the final checkpoints are evaluated under (level 1), by default.

@@ -98,6 +98,7 @@ __all__ = [
     "parse_args",
     "parse_python_literal",
     "run",
+    "scale_actor_lr",
     "validate",
     "zero_init_actor",
 ]
@@ -115,7 +116,7 @@ class TrainConfig:
     """Its implementation: "sb3" (Stable-Baselines3, torch) or "sbx" (the SB3 team's JAX port,
     the optional ``sbx`` extra; the same interface, callbacks and files). The residual
     safeguards that act on the torch actor (``zero_init_residual``, ``init_log_std``,
-    ``critic_warmup_steps``) are sb3's only."""
+    ``critic_warmup_steps``, ``actor_lr_scale``) are sb3's only."""
     env_id: str = "ptrack_gym/TwoLinkTrack-v0"
     """A ptrack_gym env id (``ptrack_gym.ENV_IDS``)."""
     residual: str = "none"
@@ -186,6 +187,10 @@ class TrainConfig:
     """Off-policy only: the actor is frozen (its parameters get no update) for this many
     steps after ``learning_starts`` while the critic learns from what it does; with
     ``--zero-init-residual`` that is the base controller plus exploration noise."""
+    actor_lr_scale: float = 1.0
+    """SAC/TD3 only: the actor's learning rate is this times the schedule's (the critic's
+    and the entropy coefficient's keep it): with Adam, how far the actor's output moves per
+    update scales with it (``scale_actor_lr``)."""
     torch_threads: int = 1
     """``torch.set_num_threads`` (the machines are shared: keep 1)."""
     device: str = "cpu"
@@ -236,6 +241,7 @@ def validate(cfg: TrainConfig) -> Resolved:
                 ("zero_init_residual", cfg.zero_init_residual),
                 ("init_log_std", cfg.init_log_std is not None),
                 ("critic_warmup_steps", cfg.critic_warmup_steps != 0),
+                ("actor_lr_scale", cfg.actor_lr_scale != 1.0),
             )
             if on
         ]
@@ -261,6 +267,10 @@ def validate(cfg: TrainConfig) -> Resolved:
         raise TrainConfigError(f"critic_warmup_steps must be >= 0, got {cfg.critic_warmup_steps}")
     if cfg.critic_warmup_steps and cfg.algo == "ppo":
         raise TrainConfigError("critic_warmup_steps needs an off-policy algorithm (sac, td3)")
+    if not (math.isfinite(cfg.actor_lr_scale) and 0 < cfg.actor_lr_scale <= 1):
+        raise TrainConfigError(f"actor_lr_scale must be in (0, 1], got {cfg.actor_lr_scale}")
+    if cfg.actor_lr_scale != 1.0 and cfg.algo == "ppo":
+        raise TrainConfigError("actor_lr_scale needs an actor optimizer (sac, td3)")
     if cfg.init_log_std is not None and (cfg.algo != "sac" or not math.isfinite(cfg.init_log_std)):
         raise TrainConfigError("init_log_std is a finite number, for sac only")
     env_extra: dict[str, Any] = {"reward": cfg.reward}
@@ -421,6 +431,30 @@ def init_actor_log_std(model: BaseAlgorithm, log_std: float) -> None:
         head.bias.fill_(log_std)
 
 
+def scale_actor_lr(model: BaseAlgorithm, scale: float) -> None:
+    """SAC/TD3: every step of the actor's optimizer uses ``scale`` times the learning rate
+    SB3 set for it (its schedule's value; SB3 resets it before each ``train`` call), which
+    is restored right after the step, so the scale never compounds and the critic's and
+    the entropy coefficient's optimizers are untouched. Hooks are not saved with a model:
+    apply again after loading one (``run`` does, on ``--resume``)."""
+    if not isinstance(model, (SAC, TD3)):
+        raise TrainConfigError(f"actor_lr_scale is for SAC and TD3, not {type(model).__name__}")
+    optimizer = model.actor.optimizer  # type: ignore[union-attr]
+    saved: list[float] = []
+
+    def before(opt: torch.optim.Optimizer, args: Any, kwargs: Any) -> None:
+        saved[:] = [group["lr"] for group in opt.param_groups]
+        for group in opt.param_groups:
+            group["lr"] = group["lr"] * scale
+
+    def after(opt: torch.optim.Optimizer, args: Any, kwargs: Any) -> None:
+        for group, lr in zip(opt.param_groups, saved, strict=True):
+            group["lr"] = lr
+
+    optimizer.register_step_pre_hook(before)
+    optimizer.register_step_post_hook(after)
+
+
 class ActorWarmupCallback(BaseCallback):
     """Freeze the actor (its parameters get no gradient, so no update) until the model
     has taken ``until_steps`` env steps, while the critic trains on what the frozen actor
@@ -545,6 +579,8 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
                 zero_init_actor(model)
             if cfg.init_log_std is not None:
                 init_actor_log_std(model, cfg.init_log_std)
+        if cfg.actor_lr_scale != 1.0:  # fresh or resumed: the hooks are not saved
+            scale_actor_lr(model, cfg.actor_lr_scale)
         # An explicit logger in the run folder: without one SB3 creates /tmp/SB3-<date>.
         formats = (
             ["csv"]
@@ -663,6 +699,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gate-deadband-rad", type=float, default=d.gate_deadband_rad)
     p.add_argument("--init-log-std", type=float, default=None)
     p.add_argument("--critic-warmup-steps", type=int, default=d.critic_warmup_steps)
+    p.add_argument(
+        "--actor-lr-scale", type=float, default=d.actor_lr_scale,
+        help="SAC/TD3: the actor's learning rate as a fraction of the critic's",
+    )  # fmt: skip
     p.add_argument("--torch-threads", type=int, default=d.torch_threads)
     p.add_argument("--device", default=d.device)
     p.add_argument("--verbose", type=int, default=d.verbose)
