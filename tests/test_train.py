@@ -419,7 +419,8 @@ def test_to_argv_round_trips_every_field(tmp_path: Path) -> None:
         zero_init_residual=True, control_hz=500.0, episode_s=1.5, start="rest_near_path",
         reward_weights=[1.0, 0.0, 0.5], reward="kernel", kernel_weights=[1.0, 0.0, 0.0],
         max_path_distance=0.3, action_penalty=0.05, gate_rad=0.002, gate_deadband_rad=0.001,
-        critic_warmup_steps=10, actor_lr_scale=0.1, torch_threads=2, verbose=1,
+        critic_warmup_steps=10, actor_lr_scale=0.1, actor_bc_weight=0.5, torch_threads=2,
+        verbose=1,
     )  # fmt: skip
     assert parse_args(to_argv(cfg)) == cfg
     assert parse_args(to_argv(TrainConfig(out="x"))) == TrainConfig(out="x")

@@ -65,6 +65,7 @@ GROUP_KEYS = (
     "reward_weights", "reward", "kernel_weights", "max_path_distance", "hyperparams",
     "overrides", "scale_fraction", "scale_accel_rad_s2", "zero_init_residual", "action_penalty",
     "gate_rad", "gate_deadband_rad", "init_log_std", "critic_warmup_steps", "actor_lr_scale",
+    "actor_bc_weight",
 )  # fmt: skip
 
 #: The presets the final checkpoints are evaluated under (level 1), by default.

@@ -116,7 +116,7 @@ class TrainConfig:
     """Its implementation: "sb3" (Stable-Baselines3, torch) or "sbx" (the SB3 team's JAX port,
     the optional ``sbx`` extra; the same interface, callbacks and files). The residual
     safeguards that act on the torch actor (``zero_init_residual``, ``init_log_std``,
-    ``critic_warmup_steps``, ``actor_lr_scale``) are sb3's only."""
+    ``critic_warmup_steps``, ``actor_lr_scale``, ``actor_bc_weight``) are sb3's only."""
     env_id: str = "ptrack_gym/TwoLinkTrack-v0"
     """A ptrack_gym env id (``ptrack_gym.ENV_IDS``)."""
     residual: str = "none"
@@ -191,6 +191,11 @@ class TrainConfig:
     """SAC/TD3 only: the actor's learning rate is this times the schedule's (the critic's
     and the entropy coefficient's keep it): with Adam, how far the actor's output moves per
     update scales with it (``scale_actor_lr``)."""
+    actor_bc_weight: float = 0.0
+    """SAC/TD3 only: λ of a behaviour-cloning term toward the base, λ·E_s[|μ(s)|²/n] added to
+    the actor's loss (μ the deterministic action in [−1, 1]ⁿ, s drawn from the replay
+    buffer; TD3+BC's term with the base's action 0 as the target): the actor leaves 0 only
+    where the critic's action gradient exceeds 2λ|μ_j|/n (``add_actor_bc``)."""
     torch_threads: int = 1
     """``torch.set_num_threads`` (the machines are shared: keep 1)."""
     device: str = "cpu"
@@ -242,6 +247,7 @@ def validate(cfg: TrainConfig) -> Resolved:
                 ("init_log_std", cfg.init_log_std is not None),
                 ("critic_warmup_steps", cfg.critic_warmup_steps != 0),
                 ("actor_lr_scale", cfg.actor_lr_scale != 1.0),
+                ("actor_bc_weight", cfg.actor_bc_weight != 0.0),
             )
             if on
         ]
@@ -271,6 +277,10 @@ def validate(cfg: TrainConfig) -> Resolved:
         raise TrainConfigError(f"actor_lr_scale must be in (0, 1], got {cfg.actor_lr_scale}")
     if cfg.actor_lr_scale != 1.0 and cfg.algo == "ppo":
         raise TrainConfigError("actor_lr_scale needs an actor optimizer (sac, td3)")
+    if not (math.isfinite(cfg.actor_bc_weight) and cfg.actor_bc_weight >= 0):
+        raise TrainConfigError(f"actor_bc_weight must be >= 0, got {cfg.actor_bc_weight}")
+    if cfg.actor_bc_weight and cfg.algo == "ppo":
+        raise TrainConfigError("actor_bc_weight needs an actor optimizer (sac, td3)")
     if cfg.init_log_std is not None and (cfg.algo != "sac" or not math.isfinite(cfg.init_log_std)):
         raise TrainConfigError("init_log_std is a finite number, for sac only")
     env_extra: dict[str, Any] = {"reward": cfg.reward}
@@ -455,6 +465,42 @@ def scale_actor_lr(model: BaseAlgorithm, scale: float) -> None:
     optimizer.register_step_post_hook(after)
 
 
+def actor_bc_loss(model: BaseAlgorithm, obs: torch.Tensor, weight: float) -> torch.Tensor:
+    """λ·mean over the batch and the n action dimensions of μ(s)², μ the actor's
+    deterministic action (SAC: tanh of the Gaussian's mean; TD3: the actor's output), in the
+    policy's [−1, 1]ⁿ: TD3+BC's (π(s) − a)² with the residual's base action a = 0."""
+    actor: Any = model.actor  # type: ignore[attr-defined]
+    if isinstance(model, SAC):
+        mean_actions, _, _ = actor.get_action_dist_params(obs)
+        mu = torch.tanh(mean_actions)
+    elif isinstance(model, TD3):
+        mu = actor(obs)
+    else:
+        raise TrainConfigError(f"actor_bc_weight is for SAC and TD3, not {type(model).__name__}")
+    return weight * (mu**2).mean()
+
+
+def add_actor_bc(model: BaseAlgorithm, weight: float) -> None:
+    """SAC/TD3: before every step of the actor's optimizer, add the gradient of
+    :func:`actor_bc_loss` on a fresh replay-buffer batch (SB3's batch size, observations
+    normalised as SB3's ``train`` does) to the actor's loss gradient SB3 has just computed:
+    an unbiased gradient of actor loss + BC term from two independent batches, without
+    copying SB3's update. Skipped while the actor is frozen (critic warm-up). Hooks are not
+    saved with a model: apply again after loading one (``run`` does, on ``--resume``)."""
+    if not isinstance(model, (SAC, TD3)):
+        raise TrainConfigError(f"actor_bc_weight is for SAC and TD3, not {type(model).__name__}")
+    algo: Any = model
+    params = list(algo.actor.parameters())
+
+    def before(opt: torch.optim.Optimizer, args: Any, kwargs: Any) -> None:
+        if not any(p.requires_grad for p in params):
+            return
+        batch = algo.replay_buffer.sample(algo.batch_size, env=algo._vec_normalize_env)
+        actor_bc_loss(algo, batch.observations, weight).backward()
+
+    algo.actor.optimizer.register_step_pre_hook(before)
+
+
 class ActorWarmupCallback(BaseCallback):
     """Freeze the actor (its parameters get no gradient, so no update) until the model
     has taken ``until_steps`` env steps, while the critic trains on what the frozen actor
@@ -581,6 +627,8 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
                 init_actor_log_std(model, cfg.init_log_std)
         if cfg.actor_lr_scale != 1.0:  # fresh or resumed: the hooks are not saved
             scale_actor_lr(model, cfg.actor_lr_scale)
+        if cfg.actor_bc_weight:  # likewise
+            add_actor_bc(model, cfg.actor_bc_weight)
         # An explicit logger in the run folder: without one SB3 creates /tmp/SB3-<date>.
         formats = (
             ["csv"]
@@ -702,6 +750,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--actor-lr-scale", type=float, default=d.actor_lr_scale,
         help="SAC/TD3: the actor's learning rate as a fraction of the critic's",
+    )  # fmt: skip
+    p.add_argument(
+        "--actor-bc-weight", type=float, default=d.actor_bc_weight,
+        help="SAC/TD3: weight of a term pulling the actor's action toward 0 (the base)",
     )  # fmt: skip
     p.add_argument("--torch-threads", type=int, default=d.torch_threads)
     p.add_argument("--device", default=d.device)
