@@ -88,6 +88,38 @@ def test_runs_that_differ_in_what_they_share_are_refused(
         discover(root)
 
 
+@pytest.mark.parametrize("key", ["actor_bc_weight", "actor_lr_scale", "critic_warmup_steps"])
+def test_a_run_written_before_a_key_existed_groups_with_its_default(
+    study: Path, tmp_path: Path, key: str
+) -> None:
+    """A run whose config.yml lacks a group key (written by an older version) ran with the
+    key's default: it groups with runs that write the default, and not with others."""
+    root = tmp_path / "old"
+    shutil.copytree(study / "pure_s0", root / "a")
+    shutil.copytree(study / "pure_s1", root / "b")
+    cfg_file = root / "a" / "config.yml"
+    cfg = yaml.safe_load(cfg_file.read_text())
+    del cfg["config"][key]
+    cfg_file.write_text(yaml.safe_dump(cfg))
+    assert len(discover(root)) == 2
+    other = root / "b" / "config.yml"
+    cfg = yaml.safe_load(other.read_text())
+    cfg["config"][key] = cfg["config"][key] / 2 if key == "actor_lr_scale" else 5
+    other.write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InvalidConfigError, match=key):
+        discover(root)
+
+
+def test_the_group_key_defaults_are_train_configs() -> None:
+    from train.rl_study import GROUP_KEY_DEFAULTS, GROUP_KEYS
+    from train.train import TrainConfig
+
+    defaults = TrainConfig(out="")
+    assert set(GROUP_KEY_DEFAULTS) == set(GROUP_KEYS)
+    for key, value in GROUP_KEY_DEFAULTS.items():
+        assert getattr(defaults, key) == value, key
+
+
 def test_a_folder_without_finished_runs_is_refused(tmp_path: Path) -> None:
     with pytest.raises(InvalidConfigError, match="no finished runs"):
         discover(tmp_path / "empty")

@@ -68,6 +68,17 @@ GROUP_KEYS = (
     "actor_bc_weight",
 )  # fmt: skip
 
+#: ``train.train.TrainConfig``'s defaults of :data:`GROUP_KEYS` (a test keeps them equal;
+#: not imported, which would import torch): a run written before a key existed lacks it in
+#: its config.yml and ran with the default, so it groups with runs that write the default.
+GROUP_KEY_DEFAULTS: dict[str, object] = {
+    "reward_weights": None, "reward": "quadratic", "kernel_weights": None,
+    "max_path_distance": None, "hyperparams": None, "overrides": {}, "scale_fraction": 0.1,
+    "scale_accel_rad_s2": None, "zero_init_residual": False, "action_penalty": 0.0,
+    "gate_rad": None, "gate_deadband_rad": 0.0, "init_log_std": None, "critic_warmup_steps": 0,
+    "actor_lr_scale": 1.0, "actor_bc_weight": 0.0,
+}  # fmt: skip
+
 #: The presets the final checkpoints are evaluated under (level 1), by default.
 FINAL_PRESETS = ("none", "impulse", "periodic", "payload", "noise")
 #: What pure RL is compared with (the issue's target: within 2x of PD + gravity).
@@ -150,10 +161,11 @@ def discover(root: Path) -> list[Run]:
         pairs = [(key, first) for key in SHARED_KEYS]
         pairs += [(key, group_first[r.group]) for key in GROUP_KEYS]
         for key, other in pairs:
-            if r.config.get(key) != other.config.get(key):
+            mine = r.config.get(key, GROUP_KEY_DEFAULTS.get(key))
+            theirs = other.config.get(key, GROUP_KEY_DEFAULTS.get(key))
+            if mine != theirs:
                 raise InvalidConfigError(
-                    f"{r.path} has {key}={r.config.get(key)!r}, "
-                    f"{other.path} has {other.config.get(key)!r}"
+                    f"{r.path} has {key}={mine!r}, {other.path} has {theirs!r}"
                 )
         if r.control_hz != first.control_hz:
             raise InvalidConfigError(f"{r.path} runs at {r.control_hz} Hz, {first.path} at "
