@@ -13,22 +13,30 @@ part of what a user waits for. Each count runs ``--repeats`` times, the counts a
 of the small sweep on this 2-core VM spread by ±3% (its 2-worker speed-up 1.77–1.87 in
 five runs of one worker count each).
 
+Counts above 1 are timed once per ``--start-methods`` entry (default: ``auto`` — a fork
+here, :func:`train.sweep.start_method` — and ``spawn``), so the two ways of starting the
+workers are compared in the same run; a second table gives what one worker costs before
+its first episode under each (a one-worker pool timed to its first result, ``--repeats``
+times).
+
 Run: ``python bench/eval_scaling.py [--seeds 24] [--episode-s 8] [--repeats 3]
-[--max-workers N] [--config train/configs/main.yml]`` (``--config``: that sweep instead,
-plots off).
+[--max-workers N] [--start-methods auto spawn] [--config train/configs/main.yml]``
+(``--config``: that sweep instead, plots off).
 """
 
 from __future__ import annotations
 
 import argparse
+import multiprocessing as mp
 import os
 import statistics
 import tempfile
 import time
 from pathlib import Path
 
+from train.episode import run_episode
 from train.evaluate import load_config
-from train.sweep import _finish, run_sweep
+from train.sweep import _finish, _worker_pool, run_sweep, start_method
 
 
 def worker_counts(cores: int) -> list[int]:
@@ -42,11 +50,17 @@ def worker_counts(cores: int) -> list[int]:
 
 
 def sweep_seconds(
-    workers: int, seeds: int, episode_s: float, folder: Path, config: Path | None = None
+    workers: int,
+    seeds: int,
+    episode_s: float,
+    folder: Path,
+    config: Path | None = None,
+    method: str = "auto",
 ) -> tuple[float, float, int]:
     """Wall time (s) of the benchmark sweep (or of the sweep of ``config``, without plots)
-    with ``workers`` processes, the time (s) of its serial tail (summary, bootstrap
-    intervals, report: timed by running it once more) and the episode count."""
+    with ``workers`` processes started by ``method``, the time (s) of its serial tail
+    (summary, bootstrap intervals, report: timed by running it once more) and the episode
+    count."""
     small = [
         "env_id=ptrack_gym/TwoLinkTrack-v0",
         "controllers=[computed_torque, passivity]",
@@ -55,7 +69,12 @@ def sweep_seconds(
         f"seeds={seeds}",
         f"episode_s={episode_s}",
     ]
-    run = ["plots=false", f"workers={workers}", f"out={folder / f'w{workers}'}"]
+    run = [
+        "plots=false",
+        f"workers={workers}",
+        f"start_method={method}",
+        f"out={folder / f'w{workers}'}",
+    ]
     cfg = load_config(config, run if config is not None else [*small, *run])
     t0 = time.perf_counter()
     run_sweep(cfg, progress=False, show=False)
@@ -63,6 +82,25 @@ def sweep_seconds(
     t0 = time.perf_counter()
     _finish(cfg, Path(cfg.out), show=False)  # the serial tail again: report, bootstrap
     return wall, time.perf_counter() - t0, len(cfg.tasks())
+
+
+def worker_start_seconds(method: str) -> float:
+    """Seconds from making a one-worker pool started by ``method`` to the result of a
+    0.1-s episode, less the same episode's time in this process: what a worker costs
+    before its first episode (imports, compiled kernels, first env; ~0 for a fork)."""
+    cfg = load_config(None, ["episode_s=0.1", "plots=false", "seeds=1"])
+    task, settings = cfg.tasks()[0], cfg.settings()
+    run_episode(task, settings, False)  # this process warm, as a sweep's is by then
+    t0 = time.perf_counter()
+    run_episode(task, settings, False)
+    local = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    pool = _worker_pool(1, method)
+    try:
+        pool.submit(run_episode, task, settings, False).result()
+        return time.perf_counter() - t0 - local
+    finally:
+        pool.shutdown()
 
 
 def main() -> None:
@@ -76,41 +114,64 @@ def main() -> None:
     parser.add_argument(
         "--config", type=Path, default=None, help="time this evaluation config instead"
     )
+    parser.add_argument(
+        "--start-methods",
+        nargs="+",
+        default=["auto", "spawn"],
+        choices=["auto", *mp.get_all_start_methods()],
+        help="how the worker processes start, each timed for every count above 1",
+    )
     args = parser.parse_args()
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1, got {args.repeats}")
     cores = args.max_workers or len(os.sched_getaffinity(0))
-    counts = worker_counts(cores)
-    timings: dict[int, list[tuple[float, float, int]]] = {w: [] for w in counts}
+    methods = list(dict.fromkeys(start_method(m) for m in args.start_methods))
+    runs = [(1, methods[0])] + [(w, m) for w in worker_counts(cores)[1:] for m in methods]
+    timings: dict[tuple[int, str], list[tuple[float, float, int]]] = {r: [] for r in runs}
     for repeat in range(args.repeats):
-        for workers in counts:  # alternating: a load change hits every count alike
+        for workers, method in runs:  # alternating: a load change hits every run alike
             with tempfile.TemporaryDirectory() as tmp:
-                timings[workers].append(
-                    sweep_seconds(workers, args.seeds, args.episode_s, Path(tmp), args.config)
+                timings[workers, method].append(
+                    sweep_seconds(
+                        workers, args.seeds, args.episode_s, Path(tmp), args.config, method
+                    )
                 )
-            print(f"repeat {repeat + 1}, {workers} workers: {timings[workers][-1][0]:.1f} s")
+            wall = timings[workers, method][-1][0]
+            how = f" ({method})" if workers > 1 else ""
+            print(f"repeat {repeat + 1}, {workers} workers{how}: {wall:.1f} s")
     rows = [
         (
             w,
-            timings[w][0][2],
-            statistics.median(t[0] for t in timings[w]),
-            statistics.median(t[1] for t in timings[w]),
+            m,
+            timings[w, m][0][2],
+            statistics.median(t[0] for t in timings[w, m]),
+            statistics.median(t[1] for t in timings[w, m]),
         )
-        for w in counts
+        for w, m in runs
     ]
-    base, base_tail = rows[0][2], rows[0][3]
+    starts = {m: [] for m in methods}
+    for _ in range(args.repeats):
+        for m in methods:
+            starts[m].append(worker_start_seconds(m))
+    print("| start | worker start before its first episode (s), median | runs |")
+    print("|---|---:|---|")
+    for m, seconds in starts.items():
+        runs_s = ", ".join(f"{x:.2f}" for x in seconds)
+        print(f"| {m} | {statistics.median(seconds):.2f} | {runs_s} |")
+    base, base_tail = rows[0][3], rows[0][4]
     print(f"cores available: {len(os.sched_getaffinity(0))}")
     print(
-        "| workers | episodes | wall (s) | serial tail (s) | episodes/s | speed-up "
+        "| workers | start | episodes | wall (s) | serial tail (s) | episodes/s | speed-up "
         "| efficiency | speed-up, episodes only |"
     )
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for workers, n, wall, tail in rows:
+    print("|---:|---|---:|---:|---:|---:|---:|---:|---:|")
+    for workers, method, n, wall, tail in rows:
         speedup = base / wall
         episodes_only = (base - base_tail) / (wall - tail)
+        start = "—" if workers == 1 else method
         print(
-            f"| {workers} | {n} | {wall:.1f} | {tail:.1f} | {n / wall:.2f} | {speedup:.2f} "
-            f"| {speedup / workers:.2f} | {episodes_only:.2f} |"
+            f"| {workers} | {start} | {n} | {wall:.1f} | {tail:.1f} | {n / wall:.2f} "
+            f"| {speedup:.2f} | {speedup / workers:.2f} | {episodes_only:.2f} |"
         )
 
 

@@ -6,6 +6,9 @@ from __future__ import annotations
 import dataclasses
 import os
 import shutil
+import sys
+import threading
+import types
 
 import gymnasium as gym
 import numpy as np
@@ -123,10 +126,12 @@ def test_resume_completes_without_duplicates(full_run, tmp_path) -> None:
     pd.testing.assert_frame_equal(numbers(out / "episodes.csv"), numbers(full_run / "episodes.csv"))
 
 
-def test_two_workers_give_the_same_numbers_and_figures(full_run, tmp_path) -> None:
-    """workers=2 (the plots drawn by the spawned worker while this process writes the
-    report): the same rows, summary and report, and byte-identical figures."""
-    out = run_sweep(tiny(tmp_path, "two", "workers=2"), progress=False)
+@pytest.mark.parametrize("method", ["fork", "spawn"])
+def test_two_workers_give_the_same_numbers_and_figures(full_run, tmp_path, method) -> None:
+    """workers=2 (the plots drawn by the worker process while this process writes the
+    report), forked or spawned: the same rows, summary and report, and byte-identical
+    figures."""
+    out = run_sweep(tiny(tmp_path, "two", "workers=2", f"start_method={method}"), progress=False)
     pd.testing.assert_frame_equal(numbers(out / "episodes.csv"), numbers(full_run / "episodes.csv"))
     figures = sorted(p.name for p in full_run.glob("*.png"))
     assert {"robustness_path_dist_rms.png", "example_passivity.png", "aggregate.png"} <= set(
@@ -159,6 +164,58 @@ def test_two_runners_share_the_tasks_and_a_failed_episode_stops_the_sweep(
     bad = dataclasses.replace(tasks[1], controller="no_such_controller")
     with pytest.raises(InvalidConfigError, match="no_such_controller"):
         list(_run_processes([tasks[0], bad, *tasks[2:]], settings, 2, set()))
+
+
+def test_auto_start_method_forks_only_where_a_fork_is_safe(monkeypatch) -> None:
+    """ "auto" forks on Linux in a single-threaded process without torch or JAX; a second
+    Python thread, an imported torch/JAX or another platform make it spawn; an explicit
+    method is kept."""
+    for name in sweep._FORK_UNSAFE_MODULES:
+        monkeypatch.delitem(sys.modules, name, raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    real_active_count = threading.active_count
+    # Earlier tests may leave a thread behind (tqdm's monitor): count this one alone.
+    monkeypatch.setattr(threading, "active_count", lambda: 1)
+    assert sweep.start_method("auto") == "fork"
+    assert sweep.start_method("spawn") == "spawn"
+    for name in ("torch", "jax"):
+        with monkeypatch.context() as m:
+            m.setitem(sys.modules, name, types.ModuleType(name))
+            assert sweep.start_method("auto") == "spawn"
+            assert sweep.start_method("fork") == "fork"
+    with monkeypatch.context() as m:
+        m.setattr(sys, "platform", "darwin")
+        assert sweep.start_method("auto") == "spawn"
+    release = threading.Event()
+    other = threading.Thread(target=release.wait)
+    other.start()
+    monkeypatch.setattr(threading, "active_count", real_active_count)
+    try:
+        assert sweep.start_method("auto") == "spawn"
+    finally:
+        release.set()
+        other.join()
+
+
+def test_forked_workers_start_with_the_pool_before_any_other_thread() -> None:
+    """A fork pool forks its workers when it is made (its first submit), so a thread this
+    process starts afterwards (the local runner, tqdm's monitor) is never copied into a
+    half-held state; a spawn pool starts its workers on the first task."""
+    forked = sweep._worker_pool(2, "fork")
+    try:
+        assert len(forked._processes) == 2
+        assert len(set(forked.map(_pid, range(8)))) <= 2
+    finally:
+        forked.shutdown()
+    spawned = sweep._worker_pool(1, "spawn")
+    try:
+        assert len(spawned._processes) == 0
+    finally:
+        spawned.shutdown()
+
+
+def _pid(_: int) -> int:
+    return os.getpid()
 
 
 def test_summary_and_report_do_not_depend_on_the_order_episodes_finished(
@@ -231,6 +288,7 @@ def test_corrupt_results_are_refused(full_run, tmp_path, mutate, match) -> None:
         "levels=[-1]",
         "bogus=1",
         "backend=spark",
+        "start_method=teleport",
         "reference=magic",
         "seeds=0",
         "path=spiral",

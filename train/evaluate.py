@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import multiprocessing as mp
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -92,9 +93,14 @@ class EvalConfig:
     """Bootstrap resamples of every confidence interval."""
     workers: int = 0
     """Episode runners (0: the number of cores): with the process backend, this process
-    and ``workers − 1`` spawned worker processes."""
+    and ``workers − 1`` worker processes."""
     backend: str = "process"
     """"process" or "ray"."""
+    start_method: str = "auto"
+    """How the process backend starts its workers: "auto" (fork on Linux while this
+    process runs one thread and has not imported torch or JAX, else spawn:
+    :func:`train.sweep.start_method`), "fork", "spawn" or "forkserver". Never changes an
+    episode's numbers."""
     ray_address: str | None = None
     """Ray cluster address (None: start a local instance)."""
     out: str = "results/main"
@@ -144,6 +150,11 @@ class EvalConfig:
                 )
         if self.backend not in ("process", "ray"):
             raise InvalidConfigError(f"backend must be 'process' or 'ray', got {self.backend!r}")
+        methods = ["auto", *mp.get_all_start_methods()]  # no fork on Windows
+        if self.start_method not in methods:
+            raise InvalidConfigError(
+                f"start_method must be one of {methods} here, got {self.start_method!r}"
+            )
         if self.reference not in self.controllers:
             raise InvalidConfigError(f"reference {self.reference!r} is not among the controllers")
         if self.gains not in GAIN_CHOICES:
@@ -219,9 +230,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--out", help="output folder (overrides the config)")
     parser.add_argument(
-        "--workers", type=int, help="episode runners: this process and N-1 spawned ones (0: cores)"
+        "--workers", type=int, help="episode runners: this process and N-1 workers (0: cores)"
     )
     parser.add_argument("--backend", choices=["process", "ray"])
+    parser.add_argument(
+        "--start-method",
+        choices=["auto", *mp.get_all_start_methods()],
+        help="how worker processes start (auto: fork where safe, else spawn)",
+    )
     parser.add_argument("--ray-address", help="Ray cluster address")
     parser.add_argument("--resume", action="store_true", help="continue an interrupted sweep")
     parser.add_argument("--video", action="store_true", help="record one MP4 per controller")
@@ -230,7 +246,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     overrides = list(args.set)
     if args.video:
         overrides.append("video=true")
-    for name in ("out", "workers", "backend", "ray_address"):
+    for name in ("out", "workers", "backend", "start_method", "ray_address"):
         value = getattr(args, name)
         if value is not None:
             overrides.append(f"{name}={value}")
