@@ -66,8 +66,10 @@ def start_method(requested: str = "auto") -> str:
     none of :data:`_FORK_UNSAFE_MODULES` imported — and ``"spawn"`` elsewhere. A forked
     worker inherits this process's imported modules, compiled numba kernels and thread
     settings instead of importing them again: it can run its first episode ~0.02 s after
-    the pool is made instead of 0.9–1.5 s (``bench/eval_scaling.py``, two-link). Any other
-    value is returned as it is (``EvalConfig.validate`` checks it)."""
+    the pool is made instead of 0.9–1.5 s (``bench/eval_scaling.py``, two-link). Native
+    thread pools are not counted: OpenBLAS's (numpy's and scipy's wheels) shut down and
+    restart around a fork by their own handlers; with an MKL or OpenMP-threaded numpy, pass
+    ``"spawn"``. Any other value is returned as it is (``EvalConfig.validate`` checks it)."""
     if requested != "auto":
         return requested
     safe = (
