@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-pure-sbx heldout clean check-python
+.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-pure-sbx heldout clean check-python
 
 setup: $(STAMP)
 
@@ -140,6 +140,11 @@ rl-iiwa-slow-actor: setup
 rl-iiwa-bc: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa_bc.yml --out runs/rl_study_iiwa_bc --workers 2
 	$(PY) -m train.rl_study --runs runs/rl_study_iiwa_bc --out docs/results/rl_study_iiwa_bc --episodes 10 --every 20000 --no-progress
+
+# The iiwa's eighth try: alpha = 1 with a 10 000-step critic warm-up that explores with std 0.5.
+rl-iiwa-wide: setup
+	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa_wide.yml --out runs/rl_study_iiwa_wide --workers 2
+	$(PY) -m train.rl_study --runs runs/rl_study_iiwa_wide --out docs/results/rl_study_iiwa_wide --episodes 10 --every 20000 --no-progress
 
 # Pure SAC on the two-link with the sbx backend (make setup installs it, after torch):
 # 5 seeds to 300 000 steps (about 1 h of training on 2 cores), evaluated every 60 000 steps
