@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-pure-sbx heldout clean check-python
+.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-pure-sbx heldout clean check-python
 
 setup: $(STAMP)
 
@@ -145,6 +145,19 @@ rl-iiwa-bc: setup
 rl-iiwa-wide: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa_wide.yml --out runs/rl_study_iiwa_wide --workers 2
 	$(PY) -m train.rl_study --runs runs/rl_study_iiwa_wide --out docs/results/rl_study_iiwa_wide --episodes 10 --every 20000 --no-progress
+
+# Its passivity residuals continued to 120 000 steps (needs rl-iiwa-wide's runs/): each run
+# copied, then resumed with its own recorded command (about 20 min, 2 at a time).
+WIDE_LONG := runs/rl_study_iiwa_wide_long
+rl-iiwa-wide-long: setup
+	mkdir -p $(WIDE_LONG) && for s in 0 1 2; do cp -a runs/rl_study_iiwa_wide/residual-passivity-wide_s$$s $(WIDE_LONG)/; done
+	pids=; for s in 0 1 2; do \
+	  cmd=$$(head -1 $(WIDE_LONG)/residual-passivity-wide_s$$s/command.txt | \
+	    sed -e 's#^[^ ]* -m #$(PY) -m #' -e 's#rl_study_iiwa_wide/#rl_study_iiwa_wide_long/#'); \
+	  eval "$$cmd --resume" & pids="$$pids $$!"; \
+	  if [ $$s = 1 ]; then for p in $$pids; do wait $$p || exit 1; done; pids=; fi; \
+	done; for p in $$pids; do wait $$p || exit 1; done
+	$(PY) -m train.rl_study --runs $(WIDE_LONG) --out docs/results/rl_study_iiwa_wide_long --episodes 10 --every 60000 --no-progress
 
 # Pure SAC on the two-link with the sbx backend (make setup installs it, after torch):
 # 5 seeds to 300 000 steps (about 1 h of training on 2 cores), evaluated every 60 000 steps
