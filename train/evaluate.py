@@ -23,6 +23,15 @@ with ``--set key=value`` (value parsed as YAML) or its own flag.
 
 from __future__ import annotations
 
+import os
+
+if __name__ == "__main__":
+    # One BLAS thread per process (the parallelism is across episodes), set before numpy
+    # loads: the process stays single-threaded, so its sweep can fork its workers
+    # (train.sweep.start_method). A value the user set is kept.
+    for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(_name, "1")
+
 import argparse
 import importlib.util
 import multiprocessing as mp

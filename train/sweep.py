@@ -58,23 +58,32 @@ _ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 _FORK_UNSAFE_MODULES = ("torch", "jax", "tensorflow", "ray")
 
 
+def _thread_count() -> int:
+    """Threads of this process, native ones included (BLAS pools, tqdm's monitor, the
+    executors'): the entries of ``/proc/self/task`` on Linux, else the Python threads."""
+    try:
+        return len(os.listdir("/proc/self/task"))
+    except OSError:
+        return threading.active_count()
+
+
 def start_method(requested: str = "auto") -> str:
     """The multiprocessing start method of the sweep's worker processes.
 
     ``"auto"`` is ``"fork"`` where a fork is safe — Linux (macOS's system libraries are not
-    fork-safe, Windows has no fork), this process running no other Python thread, and
-    none of :data:`_FORK_UNSAFE_MODULES` imported — and ``"spawn"`` elsewhere. A forked
-    worker inherits this process's imported modules, compiled numba kernels and thread
-    settings instead of importing them again: it can run its first episode ~0.02 s after
-    the pool is made instead of 0.9–1.5 s (``bench/eval_scaling.py``, two-link). Native
-    thread pools are not counted: OpenBLAS's (numpy's and scipy's wheels) shut down and
-    restart around a fork by their own handlers; with an MKL or OpenMP-threaded numpy, pass
-    ``"spawn"``. Any other value is returned as it is (``EvalConfig.validate`` checks it)."""
+    fork-safe, Windows has no fork), Python ≥ 3.11 (whose fork pools start every worker on
+    the first task), this process running a single thread (native threads counted, as
+    Python ≥ 3.12's own fork warning counts them: ``python -m train.evaluate`` sets one
+    BLAS thread before numpy loads), and none of :data:`_FORK_UNSAFE_MODULES` imported —
+    and ``"spawn"`` elsewhere. A forked worker inherits this process's imported modules
+    instead of importing them again (``bench/eval_scaling.py`` times both, each in a fresh
+    process). Any other value is returned as it is (``EvalConfig.validate`` checks it)."""
     if requested != "auto":
         return requested
     safe = (
         sys.platform.startswith("linux")
-        and threading.active_count() == 1
+        and sys.version_info >= (3, 11)
+        and _thread_count() == 1
         and not any(name in sys.modules for name in _FORK_UNSAFE_MODULES)
     )
     return "fork" if safe else "spawn"
