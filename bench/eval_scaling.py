@@ -13,11 +13,13 @@ part of what a user waits for. Each count runs ``--repeats`` times, the counts a
 of the small sweep on this 2-core VM spread by ±3% (its 2-worker speed-up 1.77–1.87 in
 five runs of one worker count each).
 
-Counts above 1 are timed once per ``--start-methods`` entry (default: ``auto`` — a fork
-here, :func:`train.sweep.start_method` — and ``spawn``), so the two ways of starting the
-workers are compared in the same run; a second table gives what one worker costs before
-its first episode under each (a one-worker pool timed to its first result, ``--repeats``
-times).
+Every sweep is a fresh ``python -m train.evaluate`` process, as a user runs it (interpreter
+start and imports included, nothing warm from an earlier sweep). Counts above 1 are timed
+once per ``--start-methods`` entry (default: ``fork`` — what ``start_method: auto`` picks
+for that command on Linux, Python >= 3.11: :func:`train.sweep.start_method` — and
+``spawn``), so the two ways of starting the workers are compared in the same run; a second
+table gives what one worker costs before its first episode under each (in a fresh process
+that has imported what the CLI imports and run no episode, ``--repeats`` times).
 
 Run: ``python bench/eval_scaling.py [--seeds 24] [--episode-s 8] [--repeats 3]
 [--max-workers N] [--start-methods auto spawn] [--config train/configs/main.yml]``
@@ -30,13 +32,14 @@ import argparse
 import multiprocessing as mp
 import os
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 
-from train.episode import run_episode
 from train.evaluate import load_config
-from train.sweep import _finish, _worker_pool, run_sweep, start_method
+from train.sweep import _finish
 
 
 def worker_counts(cores: int) -> list[int]:
@@ -49,6 +52,10 @@ def worker_counts(cores: int) -> list[int]:
     return counts
 
 
+#: The thread variables of ``make test`` and ``python -m train.evaluate``: one thread each.
+ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
 def sweep_seconds(
     workers: int,
     seeds: int,
@@ -57,10 +64,11 @@ def sweep_seconds(
     config: Path | None = None,
     method: str = "auto",
 ) -> tuple[float, float, int]:
-    """Wall time (s) of the benchmark sweep (or of the sweep of ``config``, without plots)
-    with ``workers`` processes started by ``method``, the time (s) of its serial tail
-    (summary, bootstrap intervals, report: timed by running it once more) and the episode
-    count."""
+    """Wall time (s) of ``python -m train.evaluate`` running the benchmark sweep (or the
+    sweep of ``config``, without plots) with ``workers`` processes started by ``method``,
+    in a fresh process as a user runs it (interpreter start and imports included, nothing
+    warm from an earlier run); the time (s) of its serial tail (summary, bootstrap
+    intervals, report: timed here by running it once more) and the episode count."""
     small = [
         "env_id=ptrack_gym/TwoLinkTrack-v0",
         "controllers=[computed_torque, passivity]",
@@ -75,32 +83,53 @@ def sweep_seconds(
         f"start_method={method}",
         f"out={folder / f'w{workers}'}",
     ]
-    cfg = load_config(config, run if config is not None else [*small, *run])
+    overrides = run if config is not None else [*small, *run]
+    cfg = load_config(config, overrides)
+    argv = [sys.executable, "-m", "train.evaluate", "--no-progress"]
+    if config is not None:
+        argv += ["--config", str(config)]
+    for item in overrides:
+        argv += ["--set", item]
     t0 = time.perf_counter()
-    run_sweep(cfg, progress=False, show=False)
+    subprocess.run(argv, check=True, stdout=subprocess.DEVNULL, env={**os.environ})
     wall = time.perf_counter() - t0
     t0 = time.perf_counter()
     _finish(cfg, Path(cfg.out), show=False)  # the serial tail again: report, bootstrap
     return wall, time.perf_counter() - t0, len(cfg.tasks())
 
 
+_START_PROBE = """
+import sys, time
+from train.episode import run_episode
+from train.evaluate import load_config
+from train.sweep import _worker_pool
+cfg = load_config(None, ["episode_s=0.1", "plots=false", "seeds=1"])
+task, settings = cfg.tasks()[0], cfg.settings()
+t0 = time.perf_counter()
+pool = _worker_pool(1, sys.argv[1])
+pool.submit(run_episode, task, settings, False).result()
+first = time.perf_counter() - t0
+t0 = time.perf_counter()
+pool.submit(run_episode, task, settings, False).result()
+print(first - (time.perf_counter() - t0))
+pool.shutdown()
+"""
+
+
 def worker_start_seconds(method: str) -> float:
-    """Seconds from making a one-worker pool started by ``method`` to the result of a
-    0.1-s episode, less the same episode's time in this process: what a worker costs
-    before its first episode (imports, compiled kernels, first env; ~0 for a fork)."""
-    cfg = load_config(None, ["episode_s=0.1", "plots=false", "seeds=1"])
-    task, settings = cfg.tasks()[0], cfg.settings()
-    run_episode(task, settings, False)  # this process warm, as a sweep's is by then
-    t0 = time.perf_counter()
-    run_episode(task, settings, False)
-    local = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    pool = _worker_pool(1, method)
-    try:
-        pool.submit(run_episode, task, settings, False).result()
-        return time.perf_counter() - t0 - local
-    finally:
-        pool.shutdown()
+    """What a worker started by ``method`` costs before its first episode, in a fresh
+    process as a sweep's is when it makes its pool (imports done, no episode run yet):
+    the seconds from making a one-worker pool to the result of a 0.1-s episode, less the
+    same episode's time once the worker is warm. A forked worker inherits the imports but
+    still loads the compiled kernels and builds its first env; a spawned one also imports."""
+    out = subprocess.run(
+        [sys.executable, "-c", _START_PROBE, method],
+        check=True,
+        capture_output=True,
+        text=True,
+        env={**os.environ, **ONE_THREAD_ENV},
+    )
+    return float(out.stdout.split()[-1])
 
 
 def main() -> None:
@@ -117,7 +146,7 @@ def main() -> None:
     parser.add_argument(
         "--start-methods",
         nargs="+",
-        default=["auto", "spawn"],
+        default=["fork", "spawn"],
         choices=["auto", *mp.get_all_start_methods()],
         help="how the worker processes start, each timed for every count above 1",
     )
@@ -125,7 +154,7 @@ def main() -> None:
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1, got {args.repeats}")
     cores = args.max_workers or len(os.sched_getaffinity(0))
-    methods = list(dict.fromkeys(start_method(m) for m in args.start_methods))
+    methods = list(dict.fromkeys(args.start_methods))
     runs = [(1, methods[0])] + [(w, m) for w in worker_counts(cores)[1:] for m in methods]
     timings: dict[tuple[int, str], list[tuple[float, float, int]]] = {r: [] for r in runs}
     for repeat in range(args.repeats):
