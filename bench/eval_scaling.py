@@ -22,7 +22,7 @@ table gives what one worker costs before its first episode under each (in a fres
 that has imported what the CLI imports and run no episode, ``--repeats`` times).
 
 Run: ``python bench/eval_scaling.py [--seeds 24] [--episode-s 8] [--repeats 3]
-[--max-workers N] [--start-methods auto spawn] [--config train/configs/main.yml]``
+[--max-workers N] [--start-methods fork spawn] [--config train/configs/main.yml]``
 (``--config``: that sweep instead, plots off).
 """
 
@@ -40,6 +40,7 @@ from pathlib import Path
 
 from train.evaluate import load_config
 from train.sweep import _finish
+from train.threads import ONE_THREAD_VARS
 
 
 def worker_counts(cores: int) -> list[int]:
@@ -50,10 +51,6 @@ def worker_counts(cores: int) -> list[int]:
     if counts[-1] != cores:
         counts.append(cores)
     return counts
-
-
-#: The thread variables of ``make test`` and ``python -m train.evaluate``: one thread each.
-ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
 def sweep_seconds(
@@ -91,7 +88,7 @@ def sweep_seconds(
     for item in overrides:
         argv += ["--set", item]
     t0 = time.perf_counter()
-    subprocess.run(argv, check=True, stdout=subprocess.DEVNULL, env={**os.environ})
+    subprocess.run(argv, check=True, stdout=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
     t0 = time.perf_counter()
     _finish(cfg, Path(cfg.out), show=False)  # the serial tail again: report, bootstrap
@@ -127,7 +124,7 @@ def worker_start_seconds(method: str) -> float:
         check=True,
         capture_output=True,
         text=True,
-        env={**os.environ, **ONE_THREAD_ENV},
+        env={**os.environ, **dict.fromkeys(ONE_THREAD_VARS, "1")},  # as the CLI sets them
     )
     return float(out.stdout.split()[-1])
 

@@ -53,6 +53,7 @@ from ptrack_gym.errors import InvalidConfigError, PtrackError
 from ptrack_gym.robots import profile_for_env_id
 from train.config_files import config_data
 from train.episode import rollout
+from train.threads import one_thread_defaults
 
 #: The families the search can drive, with what it searches.
 FAMILIES: tuple[str, ...] = ("impulse", "push", "periodic")
@@ -338,8 +339,7 @@ def run_search(cfg: AdversaryConfig, resume: bool = False, progress: bool = True
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")  # no simulator client or thread is inherited
-    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(name, "1")
+    one_thread_defaults()
     with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
         for controller in cfg.controllers:
             for family in cfg.families:

@@ -23,14 +23,12 @@ with ``--set key=value`` (value parsed as YAML) or its own flag.
 
 from __future__ import annotations
 
-import os
-
 if __name__ == "__main__":
-    # One BLAS thread per process (the parallelism is across episodes), set before numpy
-    # loads: the process stays single-threaded, so its sweep can fork its workers
-    # (train.sweep.start_method). A value the user set is kept.
-    for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(_name, "1")
+    # One BLAS thread per process, set before numpy loads: the process stays
+    # single-threaded, so its sweep can fork its workers (train.sweep.start_method).
+    from train.threads import one_thread_defaults
+
+    one_thread_defaults()
 
 import argparse
 import importlib.util
@@ -106,8 +104,8 @@ class EvalConfig:
     backend: str = "process"
     """"process" or "ray"."""
     start_method: str = "auto"
-    """How the process backend starts its workers: "auto" (fork on Linux while this
-    process runs one thread and has not imported torch or JAX, else spawn:
+    """How the process backend starts its workers: "auto" (fork on Linux, Python >= 3.11,
+    while this process runs one thread and has not imported torch or JAX, else spawn:
     :func:`train.sweep.start_method`), "fork", "spawn" or "forkserver". Never changes an
     episode's numbers."""
     ray_address: str | None = None

@@ -44,6 +44,7 @@ from ptrack_gym.robots import profile_for_env_id
 from train.config_files import config_data
 from train.episode import EpisodeSettings, Task, run_episode
 from train.results import bootstrap_ci
+from train.threads import one_thread_defaults
 
 
 @dataclass
@@ -287,8 +288,7 @@ def run_fronts(cfg: FrontConfig, resume: bool = False, progress: bool = True) ->
     jobs = [j for j in cfg.jobs() if (j[0], j[1], j[2].disturbance, j[2].seed) not in keys]
     import multiprocessing as mp
 
-    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(name, "1")
+    one_thread_defaults()
     workers = cfg.workers or len(os.sched_getaffinity(0))
     new = not points_csv.exists()
     with (

@@ -42,15 +42,10 @@ from train.results import (
     read_episodes,
     summarize,
 )
+from train.threads import one_thread_defaults
 
 if TYPE_CHECKING:
     from train.evaluate import EvalConfig
-
-
-#: Thread-count variables set to 1 (unless the user set them) in the environment the
-#: worker processes inherit: the parallelism is across episodes, and BLAS and torch (when
-#: an episode evaluates a model) read them when they load.
-_ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 #: Modules whose state does not survive a fork (thread pools, device handles): while one
@@ -95,8 +90,7 @@ def _worker_pool(processes: int, method: str = "auto") -> ProcessPoolExecutor:
     own runner does) started by ``start_method(method)``. Forked workers are
     started at once, while this process may still be single-threaded; spawned ones start
     on the first task."""
-    for name in _ONE_THREAD:
-        os.environ.setdefault(name, "1")
+    one_thread_defaults()  # BLAS and torch read them when they load in a spawned worker
     method = start_method(method)
     pool = ProcessPoolExecutor(processes, mp_context=mp.get_context(method))
     if method == "fork":  # the first submit forks every worker, before any other thread
@@ -110,11 +104,10 @@ def _run_processes(
     workers: int,
     example: set[Task],
     pool: ProcessPoolExecutor | None = None,
-    method: str = "auto",
 ) -> Iterator[tuple[dict[str, Any], Any, Task]]:
     """Run ``tasks`` on ``workers`` processes: this one and ``workers − 1`` worker processes
     (``pool``'s, if given — the caller then shuts it down — else a pool of its own, started
-    by ``method``: :func:`start_method`).
+    by :func:`start_method`).
 
     This process runs episodes too (in a thread, while its main thread hands out tasks and
     collects results), so it starts at once, while spawned workers import; every runner
@@ -128,7 +121,7 @@ def _run_processes(
         return
     own_pool = pool is None
     if pool is None:
-        pool = _worker_pool(workers - 1, method)
+        pool = _worker_pool(workers - 1)
     local = ThreadPoolExecutor(1, thread_name_prefix="episodes")
     todo = deque(tasks)
     pending: dict[Future[tuple[dict[str, Any], Any]], tuple[Task, bool]] = {}

@@ -52,6 +52,7 @@ from ptrack_gym.errors import InvalidConfigError, PtrackError
 from ptrack_gym.robots import profile_for_env_id
 from train.config_files import config_data
 from train.episode import EpisodeSettings, Task, run_episode
+from train.threads import one_thread_defaults
 
 DEFAULT_TEST_CONFIG = Path(__file__).parent / "configs" / "main.yml"
 
@@ -197,8 +198,7 @@ def tune(
     storage = JournalStorage(JournalFileBackend(str(journal)))
     import multiprocessing as mp
 
-    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(name, "1")
+    one_thread_defaults()
     workers = cfg.workers or len(os.sched_getaffinity(0))
     results: dict[str, dict[str, Any]] = {}
     with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
