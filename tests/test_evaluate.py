@@ -83,6 +83,19 @@ def test_tiny_sweep_writes_tables_provenance_and_plots(full_run) -> None:
     assert not (out / "videos").exists()  # video is opt-in
 
 
+def test_a_sweep_of_one_controller_reports_it_without_comparisons(tmp_path) -> None:
+    """One controller is its own reference: tables and report are written, the
+    comparisons file has its columns and no rows."""
+    cfg = tiny(tmp_path, "one", "controllers=[passivity]", "reference=passivity", "workers=1")
+    out = run_sweep(cfg, progress=False)
+    assert set(pd.read_csv(out / "episodes.csv")["controller"]) == {"passivity"}
+    comparisons = pd.read_csv(out / "comparisons.csv")
+    assert comparisons.empty and "mark" in comparisons.columns
+    report = (out / "report.md").read_text()
+    assert "Only passivity was evaluated: there is nothing to compare." in report
+    assert "| passivity |" in report
+
+
 def test_video_records_the_example_episode_of_every_controller(tmp_path) -> None:
     pytest.importorskip("moviepy", reason="the optional 'video' extra (MoviePy) is not installed")
     out = run_sweep(
@@ -305,6 +318,8 @@ def test_corrupt_results_are_refused(full_run, tmp_path, mutate, match) -> None:
         "seeds=0",
         "path=spiral",
         "path_seed=1.5",
+        "worst_case=null",
+        "worst_case=docs/results/adversary_iiwa",
     ],
 )
 def test_bad_config_is_refused_before_running(tmp_path, override, capsys) -> None:

@@ -135,6 +135,13 @@ class EvalConfig:
                 raise InvalidConfigError(f"disturbances: unknown {d!r}; known {list(PRESETS)}")
         if not self.controllers or not self.disturbances:
             raise InvalidConfigError("controllers and disturbances must not be empty")
+        if not (
+            isinstance(self.worst_case, list) and all(isinstance(f, str) for f in self.worst_case)
+        ):
+            raise InvalidConfigError(
+                f"worst_case must be a list of search folders ([] for none), "
+                f"got {self.worst_case!r}"
+            )
         if any(not (np.isfinite(lv) and lv > 0) for lv in self.levels):
             raise InvalidConfigError(f"levels must be positive, got {self.levels}")
         if self.seeds < 1 or self.episodes_per_seed < 1:

@@ -51,6 +51,13 @@ def cvar(values: np.ndarray, fraction: float = TAIL_FRACTION) -> float:
     return float(np.mean(x[-k:]))
 
 
+#: The columns of :func:`paired_comparisons`, in order.
+COMPARISON_COLUMNS = (
+    "disturbance", "level", "controller", "pairs", "reference_mean", "mean", "diff", "ratio",
+    "ci_low", "ci_high", "mark", "comparisons", "confidence",
+)  # fmt: skip
+
+
 def paired_comparisons(
     df: pd.DataFrame,
     metric: str,
@@ -107,7 +114,7 @@ def paired_comparisons(
                     "confidence": confidence,
                 }
             )
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows, columns=COMPARISON_COLUMNS)  # the columns even with no others
 
 
 def condition_table(df: pd.DataFrame, metric: str) -> pd.DataFrame:
