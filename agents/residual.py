@@ -81,8 +81,8 @@ Info (every step): ``tau_base_nm`` τ_base, ``tau_residual_nm`` γ scale ⊙ cli
 or M(q) γ α clip(a, −1, 1) (N·m, before the env's own clipping of the sum to τ_max),
 ``controller`` the controller's ``diagnostics()``; reset's info has ``controller`` too.
 
-:func:`make_residual_env` is the one-call constructor: ``gym.make`` + the default-gain
-controller of :func:`agents.registry.make_controller` + the wrapper.
+:func:`make_residual_env` is the one-call constructor: ``gym.make`` + the controller of
+:func:`agents.registry.make_controller` (default or tuned gains) + the wrapper.
 """
 
 from __future__ import annotations
@@ -97,7 +97,7 @@ from gymnasium.envs.registration import EnvSpec
 
 from agents.base import Controller, FeatureBlock, FloatArray, HasResidualFeatures
 from agents.policy import torque_to_action
-from agents.registry import CONTROLLER_NAMES, make_controller
+from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, make_controller
 from ptrack_gym.errors import InvalidActionError, InvalidConfigError
 
 #: Default residual authority: scale = 0.1 · τ_max per joint.
@@ -139,6 +139,13 @@ def check_safeguards(
         )
     if gate_deadband_rad > 0 and gate_rad is None:
         raise InvalidConfigError("gate_deadband_rad needs gate_rad (the gate it widens)")
+
+
+def check_base_gains(base_gains: str) -> None:
+    """Raise :class:`InvalidConfigError` unless ``base_gains`` is one of
+    ``agents.registry.GAIN_CHOICES`` ("default", "tuned")."""
+    if base_gains not in GAIN_CHOICES:
+        raise InvalidConfigError(f"base_gains must be one of {GAIN_CHOICES}, got {base_gains!r}")
 
 
 class ControllerFeatures:
@@ -186,7 +193,7 @@ class ResidualWrapper(
     Args:
         env: a ptrack_gym env (any wrapper of a ``TrackingEnv``).
         controller: the base controller, built for ``env``'s robot (same n), or the name
-            of a default-gain controller (``agents.registry.CONTROLLER_NAMES``). Given by
+            of a controller (``agents.registry.CONTROLLER_NAMES``, ``base_gains``). Given by
             name, the wrapper is re-creatable from ``env.spec`` (``spec.make()``, as
             Gymnasium's checker and ``gym.make(spec)`` do); given as an object, ``spec``
             is None (a controller object cannot be rebuilt from a spec).
@@ -197,6 +204,10 @@ class ResidualWrapper(
         action_penalty: w ≥ 0 of the penalty on the learned part (module docstring).
         gate_rad: d_g (rad) of the path-error gate; None (default): no gate.
         gate_deadband_rad: d₀ (rad) of the gate: γ = 0 while d ≤ d₀ (default 0).
+        base_gains: with ``controller`` given by name, its gains: ``"default"`` (the
+            robot's default rates at the env's control rate) or ``"tuned"`` (the rates
+            of ``agents/tuned``, as the main job runs it); must stay ``"default"`` for a
+            controller object, whose gains are its own.
 
     Raises:
         InvalidConfigError: (a ``ValueError``) a joint-count mismatch or a bad scale.
@@ -212,7 +223,11 @@ class ResidualWrapper(
         gate_rad: float | None = None,
         gate_deadband_rad: float = 0.0,
         scale_accel_rad_s2: float | None = None,
+        base_gains: str = "default",
     ) -> None:
+        check_base_gains(base_gains)
+        if not isinstance(controller, str) and base_gains != "default":
+            raise InvalidConfigError("base_gains is for a base given by name, not an object")
         self._controller_name = controller if isinstance(controller, str) else None
         self._registered = False  # set by residual_env: the spec is the registered one
         if self._controller_name is not None:
@@ -225,13 +240,15 @@ class ResidualWrapper(
                 gate_rad=gate_rad,
                 gate_deadband_rad=gate_deadband_rad,
                 scale_accel_rad_s2=scale_accel_rad_s2,
+                base_gains=base_gains,
             )
         super().__init__(env)
         u = env.unwrapped
         self.tracking_env = u
         self.n = int(u.n)
         if isinstance(controller, str):
-            controller = make_controller(controller, env)
+            controller = make_controller(controller, env, base_gains)
+        self.base_gains = base_gains
         if controller.n != self.n:
             raise InvalidConfigError(f"controller has {controller.n} joints, env has {self.n}")
         self.controller = controller
@@ -360,13 +377,15 @@ def make_residual_env(
     gate_rad: float | None = None,
     gate_deadband_rad: float = 0.0,
     scale_accel_rad_s2: float | None = None,
+    base_gains: str = "default",
     **env_kwargs: Any,
 ) -> ResidualWrapper:
     """``gym.make(env_id, **env_kwargs)`` wrapped in a :class:`ResidualWrapper` around
-    the default-gain controller ``base`` (one of ``agents.registry.CONTROLLER_NAMES``),
-    with scale = ``scale_fraction`` · τ_max (N·m) — or, with ``scale_accel_rad_s2`` α, the
-    residual M(q) α a (an acceleration, module docstring) — and the wrapper's
-    ``action_penalty``, ``gate_rad`` and ``gate_deadband_rad``.
+    the controller ``base`` (one of ``agents.registry.CONTROLLER_NAMES``) with
+    ``base_gains`` ("default" or "tuned"), with scale = ``scale_fraction`` · τ_max (N·m)
+    — or, with ``scale_accel_rad_s2`` α, the residual M(q) α a (an acceleration, module
+    docstring) — and the wrapper's ``action_penalty``, ``gate_rad`` and
+    ``gate_deadband_rad``.
 
     ``env_kwargs`` go to ``gym.make`` (env arguments such as ``control_hz``,
     ``disturbance``, and ``max_episode_steps``), which rejects unknown names.
@@ -375,10 +394,11 @@ def make_residual_env(
         InvalidConfigError: (a ``ValueError``) an unknown base or a bad scale fraction.
     """
     _check_base(base, scale_fraction, scale_accel_rad_s2)
+    check_base_gains(base_gains)
     env = gym.make(env_id, **env_kwargs)
     return _wrap(
         env, base, scale_fraction, include_controller_state,
-        action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2,
+        action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2, base_gains,
     )  # fmt: skip
 
 
@@ -410,10 +430,11 @@ def _wrap(
     gate_rad: float | None,
     gate_deadband_rad: float,
     scale_accel_rad_s2: float | None,
+    base_gains: str = "default",
 ) -> ResidualWrapper:
-    """``env`` in a :class:`ResidualWrapper` around the default-gain ``base`` with scale =
-    ``scale_fraction`` · τ_max (N·m), or the acceleration authority ``scale_accel_rad_s2``
-    when given; ``env`` is closed if that fails."""
+    """``env`` in a :class:`ResidualWrapper` around ``base`` (its ``base_gains``) with
+    scale = ``scale_fraction`` · τ_max (N·m), or the acceleration authority
+    ``scale_accel_rad_s2`` when given; ``env`` is closed if that fails."""
     try:
         limits = np.asarray(env.unwrapped.torque_limits_nm, dtype=np.float64)
         scale_nm = (
@@ -421,7 +442,7 @@ def _wrap(
         )
         return ResidualWrapper(
             env, base, scale_nm, include_controller_state,
-            action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2,
+            action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2, base_gains,
         )  # fmt: skip
     except BaseException:
         env.close()
@@ -448,11 +469,13 @@ def residual_env(
     gate_rad: float | None = None,
     gate_deadband_rad: float = 0.0,
     scale_accel_rad_s2: float | None = None,
+    base_gains: str = "default",
     **env_kwargs: Any,
 ) -> ResidualWrapper:
     """The entry point of the registered residual ids (:func:`register_residual_envs`):
     a ``TrackingEnv(robot=robot, **env_kwargs)`` in a :class:`ResidualWrapper` around the
-    default-gain controller ``base``; ``gym.make`` adds the time limit and its checkers.
+    controller ``base`` with ``base_gains``; ``gym.make`` adds the time limit and its
+    checkers.
 
     Raises:
         InvalidConfigError: an unknown base or a bad scale fraction (unknown env
@@ -461,10 +484,11 @@ def residual_env(
     from ptrack_gym.envs.tracking import TrackingEnv
 
     _check_base(base, scale_fraction, scale_accel_rad_s2)
+    check_base_gains(base_gains)
     env = TrackingEnv(robot=robot, **env_kwargs)
     wrapper = _wrap(
         env, base, scale_fraction, include_controller_state,
-        action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2,
+        action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2, base_gains,
     )  # fmt: skip
     wrapper._registered = True
     return wrapper

@@ -20,6 +20,7 @@ from agents.residual import (
     ResidualWrapper,
     make_residual_env,
     residual_env,
+    residual_env_id,
 )
 from ptrack_gym.errors import InvalidConfigError
 
@@ -29,20 +30,29 @@ SHORT = {"control_hz": 250.0, "max_episode_steps": 100, "start": "rest_near_path
 
 
 @pytest.mark.parametrize(
-    ("base", "disturbance"),
-    [("passivity", None), ("computed_torque", None), ("passivity", "noise")],
+    ("base", "disturbance", "gains"),
+    [
+        ("passivity", None, "default"),
+        ("computed_torque", None, "default"),
+        ("passivity", "noise", "default"),
+        ("passivity", "impulse", "tuned"),
+        ("computed_torque", None, "tuned"),
+    ],
 )
 @pytest.mark.parametrize("include_state", [True, False])
 def test_zero_residual_is_bit_identical_to_the_standalone_controller(
-    make_env, base: str, disturbance: str | None, include_state: bool
+    make_env, base: str, disturbance: str | None, gains: str, include_state: bool
 ) -> None:
-    """a = 0 reproduces ControllerPolicy exactly: obs, reward, flags, true (q, q̇)."""
+    """a = 0 reproduces ControllerPolicy exactly: obs, reward, flags, true (q, q̇) — with
+    the base's default gains and with its tuned ones (``base_gains``)."""
     kwargs = {**SHORT, "disturbance": disturbance}
     wrapped = make_env.track(
-        make_residual_env(TWO_LINK, base, include_controller_state=include_state, **kwargs)
+        make_residual_env(
+            TWO_LINK, base, include_controller_state=include_state, base_gains=gains, **kwargs
+        )
     )
     plain = make_env(TWO_LINK, **kwargs)
-    policy = ControllerPolicy(plain, make_controller(base, plain))
+    policy = ControllerPolicy(plain, make_controller(base, plain, gains))
     obs_w, _ = wrapped.reset(seed=7)
     obs_p, _ = plain.reset(seed=7)
     n_inner = obs_p.shape[0]
@@ -204,7 +214,29 @@ def test_spec_recreates_a_named_controller_but_not_an_object(make_env) -> None:
     assert by_object.spec is None
 
 
+@pytest.mark.parametrize("base", ["passivity", "computed_torque"])
+def test_tuned_base_gains_build_the_tuned_controller_and_survive_the_spec(
+    make_env, base: str
+) -> None:
+    """``base_gains="tuned"`` gives the base ``agents/tuned``'s gains (not the defaults), on
+    the registered id as on ``make_residual_env``, and ``gym.make(env.spec)`` keeps them."""
+    env = make_env.track(make_residual_env(TWO_LINK, base, base_gains="tuned", **SHORT))
+    plain = make_env(TWO_LINK, **SHORT)
+    tuned = make_controller(base, plain, "tuned").gains
+    assert env.controller.gains == tuned
+    assert make_controller(base, plain).gains != tuned
+    assert make_env.track(gym.make(env.spec)).controller.gains == tuned
+    registered = make_env.track(
+        gym.make(residual_env_id(TWO_LINK, base), base_gains="tuned", **SHORT)
+    )
+    assert registered.get_wrapper_attr("controller").gains == tuned
+
+
 def test_bad_configuration_raises(make_env) -> None:
+    with pytest.raises(InvalidConfigError, match="base_gains must be one of"):
+        make_residual_env(TWO_LINK, "passivity", base_gains="stiff")
+    with pytest.raises(InvalidConfigError, match="base_gains must be one of"):
+        residual_env("two_link", "passivity", base_gains=None)
     with pytest.raises(ValueError, match="unknown base controller"):
         make_residual_env(TWO_LINK, "lqr")
     with pytest.raises(ValueError, match="scale_fraction"):
@@ -217,6 +249,8 @@ def test_bad_configuration_raises(make_env) -> None:
     iiwa_ctrl = make_controller("computed_torque", make_env("ptrack_gym/IiwaTrack-v0"))
     with pytest.raises(InvalidConfigError, match="joints"):
         ResidualWrapper(inner, iiwa_ctrl)
+    with pytest.raises(InvalidConfigError, match="base_gains is for a base given by name"):
+        ResidualWrapper(inner, ctrl, base_gains="tuned")
 
 
 def test_factory_builds_every_controller(make_env) -> None:

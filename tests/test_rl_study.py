@@ -167,6 +167,40 @@ def test_groups_on_different_bases_each_meet_their_own_base(study: Path, tmp_pat
     assert (final.disturbances, final.levels) == (["none", "payload"], [1.0])
 
 
+def test_residuals_over_tuned_bases_are_compared_with_the_tuned_controllers(
+    study: Path, tmp_path: Path
+) -> None:
+    """The controllers alone run with the gains the residuals' bases had (``base_gains``);
+    a pure run does not count; residuals over differently tuned bases are refused."""
+    root = tmp_path / "tuned"
+    shutil.copytree(study / "pure_s0", root / "pure_s0")
+    for name in ("residual-passivity_s0", "residual-passivity_s1"):
+        shutil.copytree(study / "residual-passivity_s0", root / name)
+        cfg_file = root / name / "config.yml"
+        cfg = yaml.safe_load(cfg_file.read_text())
+        cfg["config"]["base_gains"] = "tuned"
+        cfg["config"]["seed"] = int(name[-1])
+        cfg_file.write_text(yaml.safe_dump(cfg))
+    runs = discover(root)
+    curves = sweep_config(runs, 2, tmp_path / "out", 1)
+    assert curves.gains == "tuned"
+    assert sweep_config(discover(study), 2, tmp_path / "out", 1).gains == "default"
+    # and each residual is evaluated over the tuned base it trained with
+    from agents.registry import make_controller
+    from train.episode import _sb3_env_and_policy
+
+    entry = next(c for c in curves.controllers if "residual-passivity_s1" in c)
+    env, _ = _sb3_env_and_policy(entry, curves.settings(), "none", 0.0)  # the cache owns env
+    tuned = make_controller("passivity", env, "tuned").gains
+    assert env.get_wrapper_attr("controller").gains == tuned
+    cfg_file = root / "residual-passivity_s1" / "config.yml"
+    cfg = yaml.safe_load(cfg_file.read_text())
+    del cfg["config"]["base_gains"]  # a run written before the key: default gains
+    cfg_file.write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InvalidConfigError, match="base_gains differ"):
+        discover(root)
+
+
 def test_thinning_keeps_multiples_and_the_last_checkpoint(study: Path) -> None:
     from train.rl_study import thin
 

@@ -32,18 +32,19 @@ def parse_disturbance(text: str | None) -> Any:
         raise InvalidConfigError(f"disturbance level must be a number: {text!r}") from None
 
 
-#: The residual wrapper's safeguard arguments a run config may set, with the wrapper's
-#: defaults (``agents.residual.make_residual_env``).
+#: The residual wrapper's arguments a run config may set (its safeguards and its base's
+#: gains), with the wrapper's defaults (``agents.residual.make_residual_env``).
 WRAPPER_DEFAULTS: dict[str, Any] = {
     "action_penalty": 0.0,
     "gate_rad": None,
     "gate_deadband_rad": 0.0,
     "scale_accel_rad_s2": None,
+    "base_gains": "default",
 }
 
 
 def residual_wrapper_kwargs(config: Mapping[str, Any]) -> dict[str, Any]:
-    """The residual wrapper's safeguard arguments (:data:`WRAPPER_DEFAULTS`' keys) of a run
+    """The residual wrapper's arguments (:data:`WRAPPER_DEFAULTS`' keys) of a run
     config — a ``TrainConfig`` as a mapping or a run's saved ``config.yml`` section (keys
     a run predates take the wrapper's default). Training and evaluation both build their
     wrapper from this, so a run is evaluated with the authority and gate it trained with
@@ -103,8 +104,8 @@ def build_env(
     residual_kwargs: Mapping[str, Any] | None = None,
 ) -> gym.Env[Any, Any]:
     """One training or evaluation env: ``gym.make`` (``residual="none"``) or the residual
-    wrapper around the default-gain controller ``residual`` (``residual_kwargs``: the
-    wrapper's safeguards, :func:`residual_wrapper_kwargs`); ``extra`` as in
+    wrapper around the controller ``residual`` (``residual_kwargs``: the wrapper's
+    safeguards and base gains, :func:`residual_wrapper_kwargs`); ``extra`` as in
     :func:`env_kwargs`."""
     kwargs = env_kwargs(control_hz, max_episode_steps, start, disturbance, reward_weights, extra)
     if residual == "none":

@@ -170,7 +170,23 @@ def discover(root: Path) -> list[Run]:
         if r.control_hz != first.control_hz:
             raise InvalidConfigError(f"{r.path} runs at {r.control_hz} Hz, {first.path} at "
                                      f"{first.control_hz} Hz")  # fmt: skip
+    study_gains(runs)  # one gains setting for the controllers alone and every residual's base
     return runs
+
+
+def study_gains(runs: Sequence[Run]) -> str:
+    """The model-based controllers' gains of a study: the ``base_gains`` every residual run
+    shares ("default" for runs written before the key existed, and for a study of pure runs
+    only) — the controllers alone are evaluated with them, so each residual is compared
+    with the very base it corrects.
+
+    Raises:
+        InvalidConfigError: residual runs with different base gains.
+    """
+    gains = {str(r.config.get("base_gains", "default")) for r in runs if r.base != "none"}
+    if len(gains) > 1:
+        raise InvalidConfigError(f"the residual runs' base_gains differ: {sorted(gains)}")
+    return gains.pop() if gains else "default"
 
 
 def reference_of(run: Run) -> str:
@@ -212,6 +228,7 @@ def sweep_config(
         control_hz=runs[0].control_hz,
         start=str(first["start"]),
         reference=baselines[0],
+        gains=study_gains(runs),
         workers=workers,
         out=str(out),
         plots=False,

@@ -56,7 +56,7 @@ from stable_baselines3.common.logger import configure as configure_logger
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 from torch import nn
 
-from agents.registry import CONTROLLER_NAMES
+from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
 from agents.residual import check_safeguards
 from ptrack_gym.envs.rewards import REWARD_MODES
 from ptrack_gym.errors import InvalidConfigError
@@ -126,6 +126,10 @@ class TrainConfig:
     scale_accel_rad_s2: float | None = None
     """Residual only: the residual as a joint acceleration instead of ``scale_fraction``:
     τ_res = M(q) α a, α in rad/s² (``agents.residual``)."""
+    base_gains: str = "default"
+    """Residual only: the base controller's gains, "default" (the robot's default rates at
+    the control rate) or "tuned" (``agents/tuned``, the main job's); evaluation rebuilds
+    the run's env with the same."""
     disturbance: str = "none"
     """Training disturbance: "none", a preset ("impulse") or "preset:level" ("push:0.5")."""
     eval_disturbance: str | None = None
@@ -264,6 +268,8 @@ def validate(cfg: TrainConfig) -> Resolved:
         raise TrainConfigError(f"scale_fraction must be >= 0, got {cfg.scale_fraction}")
     if not (math.isfinite(cfg.episode_s) and cfg.episode_s > 0):
         raise TrainConfigError(f"episode_s must be positive, got {cfg.episode_s}")
+    if cfg.base_gains not in GAIN_CHOICES:
+        raise TrainConfigError(f"base_gains must be one of {GAIN_CHOICES}, got {cfg.base_gains!r}")
     residual_kwargs = residual_wrapper_kwargs(dataclasses.asdict(cfg))
     if cfg.residual == "none":
         if residual_kwargs != WRAPPER_DEFAULTS:
@@ -300,7 +306,10 @@ def validate(cfg: TrainConfig) -> Resolved:
                 ),
             )
         if residual_kwargs:
-            check_safeguards(**residual_kwargs)
+            safeguards = {k: v for k, v in residual_kwargs.items() if k != "base_gains"}
+            check_safeguards(**safeguards)
+            if cfg.base_gains == "tuned":
+                tuned_rates(profile.name, cfg.residual)  # raises naming the tuned files there are
     except InvalidConfigError as exc:
         raise TrainConfigError(str(exc)) from None
     for name in ("eval_freq", "checkpoint_freq"):
@@ -351,7 +360,7 @@ def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
         return
     saved = yaml.safe_load(path.read_text()).get("config", {})
     for key in ("algo", "backend", "env_id", "residual", "scale_fraction", "scale_accel_rad_s2",
-                "start", "episode_s", "reward_weights", "reward", "kernel_weights",
+                "base_gains", "start", "episode_s", "reward_weights", "reward", "kernel_weights",
                 "max_path_distance", "action_penalty", "gate_rad",
                 "gate_deadband_rad"):  # fmt: skip
         if key in saved and saved[key] != getattr(cfg, key):
@@ -700,6 +709,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--scale-accel-rad-s2", type=float, default=None,
         help="the residual as a joint acceleration M(q) alpha a, alpha in rad/s^2",
+    )  # fmt: skip
+    p.add_argument(
+        "--base-gains", choices=GAIN_CHOICES, default=d.base_gains,
+        help="the residual's base controller gains (tuned: agents/tuned)",
     )  # fmt: skip
     p.add_argument("--disturbance", default=d.disturbance, help="none | preset | preset:level")
     p.add_argument("--eval-disturbance", default=None, help="default: --disturbance")
