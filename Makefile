@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-pure-sbx heldout clean check-python
+.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned authority-probe rl-pure-sbx rl-pure-sbx-iiwa heldout clean check-python
 
 setup: $(STAMP)
 
@@ -82,11 +82,12 @@ rl-deadband: setup
 # The same 2-mrad deadband put on residuals trained without a gate, at evaluation only (a
 # deploy.yml beside copies of the final checkpoints of rl-study's computed-torque residuals
 # and the penalty ablation's w = 0 passivity residuals; needs both campaigns' runs/).
-# $(call deploy_copy,RUN,DEST): a finished 60 000-step run copied to DEST (final model, its
-# last checkpoint, statistics, config) with a deploy.yml putting the 2-mrad deadband gate on it.
+# $(call deploy_copy,RUN,DEST[,STEPS]): a finished run of STEPS (default 60 000) steps copied to
+# DEST (final model, its last checkpoint, statistics, config) with a deploy.yml putting the
+# 2-mrad deadband gate on it.
 deploy_copy = mkdir -p $(2)/checkpoints && \
   cp -a $(1)/config.yml $(1)/command.txt $(1)/versions.json $(1)/monitor $(1)/model.zip $(1)/vecnormalize.pkl $(2)/ && \
-  cp -a $(1)/checkpoints/rl_model_60000_steps.zip $(1)/checkpoints/rl_model_vecnormalize_60000_steps.pkl $(2)/checkpoints/ && \
+  cp -a $(1)/checkpoints/rl_model_$(or $(3),60000)_steps.zip $(1)/checkpoints/rl_model_vecnormalize_$(or $(3),60000)_steps.pkl $(2)/checkpoints/ && \
   printf 'gate_rad: 0.002\ngate_deadband_rad: 0.002\n' > $(2)/deploy.yml
 GATED := runs/rl_deploy_deadband_two_link
 rl-gated-eval: setup
@@ -158,6 +159,31 @@ rl-iiwa-wide-long: setup
 	  if [ $$s = 1 ]; then for p in $$pids; do wait $$p || exit 1; done; pids=; fi; \
 	done; for p in $$pids; do wait $$p || exit 1; done
 	$(PY) -m train.rl_study --runs $(WIDE_LONG) --out docs/results/rl_study_iiwa_wide_long --episodes 10 --every 60000 --no-progress
+
+# The iiwa's ninth try: the residual over the main job's passivity controller (tuned gains,
+# 1 kHz) with alpha = 10 rad/s^2 (3 runs of 100 000 steps, about 35 min on 2 cores), its
+# study, then the final checkpoints gated at evaluation (2-mrad deadband).
+IIWA_TUNED := runs/rl_study_iiwa_tuned
+IIWA_TUNED_GATED := runs/rl_deploy_iiwa_tuned
+rl-iiwa-tuned: setup
+	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa_tuned.yml --out $(IIWA_TUNED) --workers 2
+	$(PY) -m train.rl_study --runs $(IIWA_TUNED) --out docs/results/rl_study_iiwa_tuned --episodes 10 --every 20000 --no-progress
+	for src in $(IIWA_TUNED)/residual-*_s*; do \
+	  b=$$(basename $$src); $(call deploy_copy,$$src,$(IIWA_TUNED_GATED)/$${b%_s*}-deploy_s$${b##*_s},100000); \
+	done
+	$(PY) -m train.rl_study --runs $(IIWA_TUNED_GATED) --out docs/results/rl_deploy_iiwa_tuned --episodes 10 --no-progress
+
+# What a residual of acceleration authority alpha can gain over that base at all: a hand-made
+# bang-bang residual toward the controller's own reference (train/authority_probe.py).
+authority-probe: setup
+	$(PY) -m train.authority_probe --base passivity --base-gains tuned --control-hz 1000 --alpha 1 3 10 --gate 0.002 --disturbance none impulse periodic payload noise
+	$(PY) -m train.authority_probe --base passivity --base-gains tuned --control-hz 1000 --alpha 10 --disturbance none impulse periodic payload noise
+
+# Pure SAC on the iiwa with sbx: the two-link's pure recipe, 2 seeds to 400 000 steps (about
+# 35 min on 2 cores), evaluated every 100 000 steps.
+rl-pure-sbx-iiwa: setup
+	$(PY) -m train.rl_campaign --config train/configs/rl_pure_sbx_iiwa.yml --out runs/rl_pure_sbx_iiwa --workers 2
+	$(PY) -m train.rl_study --runs runs/rl_pure_sbx_iiwa --out docs/results/rl_pure_sbx_iiwa --episodes 10 --every 100000 --no-progress
 
 # Pure SAC on the two-link with the sbx backend (make setup installs it, after torch):
 # 5 seeds to 300 000 steps (about 1 h of training on 2 cores), evaluated every 60 000 steps
