@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned authority-probe rl-pure-sbx rl-pure-sbx-iiwa heldout clean check-python
+.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants authority-probe rl-pure-sbx rl-pure-sbx-iiwa heldout clean check-python
 
 setup: $(STAMP)
 
@@ -161,7 +161,7 @@ rl-iiwa-wide-long: setup
 	$(PY) -m train.rl_study --runs $(WIDE_LONG) --out docs/results/rl_study_iiwa_wide_long --episodes 10 --every 60000 --no-progress
 
 # The iiwa's ninth try: the residual over the main job's passivity controller (tuned gains,
-# 1 kHz) with alpha = 10 rad/s^2 (3 runs of 100 000 steps, about 35 min on 2 cores), its
+# 1 kHz) with alpha = 10 rad/s^2 (4 runs of 100 000 steps, about 35 min on 2 cores), its
 # study, then the final checkpoints gated at evaluation (2-mrad deadband).
 IIWA_TUNED := runs/rl_study_iiwa_tuned
 IIWA_TUNED_GATED := runs/rl_deploy_iiwa_tuned
@@ -172,6 +172,14 @@ rl-iiwa-tuned: setup
 	  b=$$(basename $$src); $(call deploy_copy,$$src,$(IIWA_TUNED_GATED)/$${b%_s*}-deploy_s$${b##*_s},100000); \
 	done
 	$(PY) -m train.rl_study --runs $(IIWA_TUNED_GATED) --out docs/results/rl_deploy_iiwa_tuned --episodes 10 --no-progress
+
+# Two one-seed screens of it: a behaviour-cloning pull toward the base, and the deadband gate
+# while training (2 runs of 100 000 steps, about 20 min on 2 cores); the BC run is also
+# evaluated gated at evaluation (a deploy.yml copy beside it).
+rl-iiwa-tuned-variants: setup
+	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa_tuned_variants.yml --out runs/rl_study_iiwa_tuned_variants --workers 2
+	$(call deploy_copy,runs/rl_study_iiwa_tuned_variants/residual-passivity-tuned-bc_s0,runs/rl_study_iiwa_tuned_variants/residual-passivity-tuned-bc-deploy_s0,100000)
+	$(PY) -m train.rl_study --runs runs/rl_study_iiwa_tuned_variants --out docs/results/rl_study_iiwa_tuned_variants --episodes 10 --every 50000 --no-progress
 
 # What a residual of acceleration authority alpha can gain over that base at all: a hand-made
 # bang-bang residual toward the controller's own reference (train/authority_probe.py).
