@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants authority-probe rl-pure-sbx rl-pure-sbx-iiwa heldout clean check-python
+.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants rl-iiwa-tuned-bc authority-probe rl-pure-sbx rl-pure-sbx-iiwa heldout clean check-python
 
 setup: $(STAMP)
 
@@ -180,6 +180,17 @@ rl-iiwa-tuned-variants: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa_tuned_variants.yml --out runs/rl_study_iiwa_tuned_variants --workers 2
 	$(call deploy_copy,runs/rl_study_iiwa_tuned_variants/residual-passivity-tuned-bc_s0,runs/rl_study_iiwa_tuned_variants/residual-passivity-tuned-bc-deploy_s0,100000)
 	$(PY) -m train.rl_study --runs runs/rl_study_iiwa_tuned_variants --out docs/results/rl_study_iiwa_tuned_variants --episodes 10 --every 50000 --no-progress
+
+# The BC screen on 3 seeds (seed 0 is the screen's run, copied), gated at evaluation.
+IIWA_BC := runs/rl_study_iiwa_tuned_bc
+IIWA_BC_GATED := runs/rl_deploy_iiwa_tuned_bc
+rl-iiwa-tuned-bc: setup
+	mkdir -p $(IIWA_BC) && test -e $(IIWA_BC)/residual-passivity-tuned-bc_s0 || cp -a runs/rl_study_iiwa_tuned_variants/residual-passivity-tuned-bc_s0 $(IIWA_BC)/
+	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa_tuned_bc.yml --out $(IIWA_BC) --workers 2
+	for src in $(IIWA_BC)/residual-*_s*; do \
+	  b=$$(basename $$src); $(call deploy_copy,$$src,$(IIWA_BC_GATED)/$${b%_s*}-deploy_s$${b##*_s},100000); \
+	done
+	$(PY) -m train.rl_study --runs $(IIWA_BC_GATED) --out docs/results/rl_deploy_iiwa_tuned_bc --episodes 10 --no-progress
 
 # What a residual of acceleration authority alpha can gain over that base at all: a hand-made
 # bang-bang residual toward the controller's own reference (train/authority_probe.py).
