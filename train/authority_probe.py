@@ -29,8 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents.registry import GAIN_CHOICES
-from agents.residual import make_residual_env
-from train.envs import parse_disturbance
+from train.envs import build_env
 
 #: The probe's gain g (1/rad): the action saturates beyond 1 mrad of error.
 PROBE_GAIN = 1000.0
@@ -64,12 +63,11 @@ def probe(
 ) -> ProbeResult:
     """Run the base (a = 0) and the probe's residual on ``seeds`` (see the module
     docstring) and return their mean path-distance RMS (rad)."""
-    steps = max(1, round(episode_s * control_hz))
     gate = {} if gate_rad is None else {"gate_rad": gate_rad, "gate_deadband_rad": gate_rad}
-    env = make_residual_env(
-        env_id, base, base_gains=base_gains, scale_accel_rad_s2=alpha, control_hz=control_hz,
-        max_episode_steps=steps, horizon_s=steps / control_hz,
-        disturbance=parse_disturbance(disturbance), **gate,
+    env = build_env(
+        env_id, base, 0.0, control_hz, max(1, round(episode_s * control_hz)), "on_path",
+        disturbance,
+        residual_kwargs={"base_gains": base_gains, "scale_accel_rad_s2": alpha, **gate},
     )  # fmt: skip
     try:
         names = list(env.feature_names)
