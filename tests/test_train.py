@@ -223,6 +223,8 @@ def test_config_dataclass_is_validated_too(tmp_path: Path) -> None:
         cfg = TrainConfig(out=str(tmp_path / "x"), **{field: value})
         with pytest.raises(TrainConfigError):
             validate(cfg)
+    with pytest.raises(TrainConfigError, match="base_gains must be one of"):
+        validate(TrainConfig(out=str(tmp_path / "x"), residual="passivity", base_gains="stiff"))
     res = validate(TrainConfig(out=str(tmp_path / "x"), env_id="ptrack_gym/IiwaTrack-v0"))
     assert res.control_hz == 500.0 and res.max_episode_steps == 2500
     assert res.algo_kwargs["policy_kwargs"] == {"net_arch": [400, 300]}  # the env section

@@ -57,7 +57,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 from torch import nn
 
 from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
-from agents.residual import check_safeguards
+from agents.residual import check_base_gains, check_safeguards
 from ptrack_gym.envs.rewards import REWARD_MODES
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
@@ -268,8 +268,6 @@ def validate(cfg: TrainConfig) -> Resolved:
         raise TrainConfigError(f"scale_fraction must be >= 0, got {cfg.scale_fraction}")
     if not (math.isfinite(cfg.episode_s) and cfg.episode_s > 0):
         raise TrainConfigError(f"episode_s must be positive, got {cfg.episode_s}")
-    if cfg.base_gains not in GAIN_CHOICES:
-        raise TrainConfigError(f"base_gains must be one of {GAIN_CHOICES}, got {cfg.base_gains!r}")
     residual_kwargs = residual_wrapper_kwargs(dataclasses.asdict(cfg))
     if cfg.residual == "none":
         if residual_kwargs != WRAPPER_DEFAULTS:
@@ -295,6 +293,7 @@ def validate(cfg: TrainConfig) -> Resolved:
     if cfg.max_path_distance is not None:
         env_extra["max_path_distance_rad"] = cfg.max_path_distance
     try:
+        check_base_gains(cfg.base_gains)
         profile = profile_for_env_id(cfg.env_id)
         control_hz = profile.default_control_hz if cfg.control_hz is None else cfg.control_hz
         max_episode_steps = max(1, round(cfg.episode_s * control_hz))
