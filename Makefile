@@ -89,6 +89,12 @@ deploy_copy = mkdir -p $(2)/checkpoints && \
   cp -a $(1)/config.yml $(1)/command.txt $(1)/versions.json $(1)/monitor $(1)/model.zip $(1)/vecnormalize.pkl $(2)/ && \
   cp -a $(1)/checkpoints/rl_model_$(or $(3),60000)_steps.zip $(1)/checkpoints/rl_model_vecnormalize_$(or $(3),60000)_steps.pkl $(2)/checkpoints/ && \
   printf 'gate_rad: 0.002\ngate_deadband_rad: 0.002\n' > $(2)/deploy.yml
+# $(call deploy_all,RUNS,DEST[,STEPS]): every residual run <group>_s<seed> of RUNS copied by
+# deploy_copy to DEST/<group>-deploy_s<seed>.
+HASH := \#
+deploy_all = for src in $(1)/residual-*_s*; do \
+	  b=$$(basename $$src); $(call deploy_copy,$$src,$(2)/$${b%_s*}-deploy_s$${b$(HASH)$(HASH)*_s},$(3)); \
+	done
 GATED := runs/rl_deploy_deadband_two_link
 rl-gated-eval: setup
 	for i in 0 1 2 3 4; do \
@@ -106,9 +112,7 @@ IIWA_GATED := runs/rl_deploy_iiwa
 rl-iiwa: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa.yml --out $(IIWA) --workers 2
 	$(PY) -m train.rl_study --runs $(IIWA) --out docs/results/rl_study_iiwa --episodes 10 --every 20000 --no-progress
-	for src in $(IIWA)/residual-*_s*; do \
-	  b=$$(basename $$src); $(call deploy_copy,$$src,$(IIWA_GATED)/$${b%_s*}-deploy_s$${b##*_s}); \
-	done
+	$(call deploy_all,$(IIWA),$(IIWA_GATED))
 	$(PY) -m train.rl_study --runs $(IIWA_GATED) --out docs/results/rl_deploy_iiwa --episodes 10 --no-progress
 
 # The iiwa's second try: the residual's authority 0.01 tau_max instead of 0.1 (6 runs, about
@@ -168,9 +172,7 @@ IIWA_TUNED_GATED := runs/rl_deploy_iiwa_tuned
 rl-iiwa-tuned: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa_tuned.yml --out $(IIWA_TUNED) --workers 2
 	$(PY) -m train.rl_study --runs $(IIWA_TUNED) --out docs/results/rl_study_iiwa_tuned --episodes 10 --every 20000 --no-progress
-	for src in $(IIWA_TUNED)/residual-*_s*; do \
-	  b=$$(basename $$src); $(call deploy_copy,$$src,$(IIWA_TUNED_GATED)/$${b%_s*}-deploy_s$${b##*_s},100000); \
-	done
+	$(call deploy_all,$(IIWA_TUNED),$(IIWA_TUNED_GATED),100000)
 	$(PY) -m train.rl_study --runs $(IIWA_TUNED_GATED) --out docs/results/rl_deploy_iiwa_tuned --episodes 10 --no-progress
 
 # Two one-seed screens of it: a behaviour-cloning pull toward the base, and the deadband gate
@@ -187,9 +189,7 @@ IIWA_BC_GATED := runs/rl_deploy_iiwa_tuned_bc
 rl-iiwa-tuned-bc: setup
 	mkdir -p $(IIWA_BC) && test -e $(IIWA_BC)/residual-passivity-tuned-bc_s0 || cp -a runs/rl_study_iiwa_tuned_variants/residual-passivity-tuned-bc_s0 $(IIWA_BC)/
 	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa_tuned_bc.yml --out $(IIWA_BC) --workers 2
-	for src in $(IIWA_BC)/residual-*_s*; do \
-	  b=$$(basename $$src); $(call deploy_copy,$$src,$(IIWA_BC_GATED)/$${b%_s*}-deploy_s$${b##*_s},100000); \
-	done
+	$(call deploy_all,$(IIWA_BC),$(IIWA_BC_GATED),100000)
 	$(PY) -m train.rl_study --runs $(IIWA_BC_GATED) --out docs/results/rl_deploy_iiwa_tuned_bc --episodes 10 --no-progress
 
 # What a residual of acceleration authority alpha can gain over that base at all: a hand-made
