@@ -3,6 +3,9 @@ its base at zero authority and inside its gate's deadband, and acts otherwise.""
 
 from __future__ import annotations
 
+import pytest
+
+from ptrack_gym.errors import InvalidConfigError
 from train.authority_probe import main, probe
 
 TWO_LINK = "ptrack_gym/TwoLinkTrack-v0"
@@ -37,3 +40,12 @@ def test_cli_prints_one_row_per_condition(capsys) -> None:
     ]  # fmt: skip
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 2 + 4 and lines[0].startswith("| disturbance")  # header, rule, rows
+
+
+def test_a_bad_authority_or_gain_choice_is_refused_before_an_episode_runs() -> None:
+    with pytest.raises(InvalidConfigError, match="scale_accel_rad_s2"):
+        probe(TWO_LINK, "passivity", "default", disturbance="none", alpha=-1.0,
+              gate_rad=None, **SHORT)  # fmt: skip
+    with pytest.raises(InvalidConfigError, match="base_gains"):
+        probe(TWO_LINK, "passivity", "stiff", disturbance="none", alpha=1.0,
+              gate_rad=None, **SHORT)  # fmt: skip
