@@ -76,9 +76,25 @@ Safeguards (both off by default, so a = 0 stays bit-identical to the base):
   whatever the policy outputs; with d₀ > 0 it is *exactly* zero while d ≤ d₀, so an arm
   the base keeps within d₀ of the path runs bit-identically to the base alone (choose d₀
   above the base's undisturbed path distance). ``info["residual_gate"]`` is γ.
+* ``prior_gain_per_rad`` g ≥ 0 — a hand-made feedback the learned part is added to, a
+  *control prior* (Cheng et al., "Control regularization for reduced variance
+  reinforcement learning", ICML 2019): stiffness toward the base's own reference point,
 
-Info (every step): ``tau_base_nm`` τ_base, ``tau_residual_nm`` γ scale ⊙ clip(a, −1, 1)
-or M(q) γ α clip(a, −1, 1) (N·m, before the env's own clipping of the sum to τ_max),
+  .. math::
+
+      a_{prior} = \\mathrm{clip}(g\\,(q_r(s) - q), -1, 1), \\qquad
+      a_{eff} = \\mathrm{clip}(a + a_{prior}, -1, 1),
+
+  with q_r(s) − q the base's ``path_error_j_rad`` features (bases of
+  :data:`PRIOR_BASES`) at the measured state the policy observes, and a_eff in place of a
+  in τ_res (gated alike). A zero-initialised actor then starts as the prior, and the
+  behaviour-cloning pull toward a = 0 (``train.train``'s ``actor_bc_weight``) becomes a pull
+  toward it. g = 1000 1/rad is ``train.authority_probe``'s probe. ``info["residual_prior"]``
+  is a_prior; the action penalty stays on the learned a.
+
+Info (every step): ``tau_base_nm`` τ_base, ``tau_residual_nm`` γ scale ⊙ a_eff or
+M(q) γ α a_eff (a_eff = clip(a, −1, 1) without a prior; N·m, before the env's own
+clipping of the sum to τ_max),
 ``controller`` the controller's ``diagnostics()``; reset's info has ``controller`` too.
 
 :func:`make_residual_env` is the one-call constructor: ``gym.make`` + the controller of
@@ -104,6 +120,10 @@ from ptrack_gym.errors import InvalidActionError, InvalidConfigError
 DEFAULT_SCALE_FRACTION = 0.1
 #: Bound of the "last τ_base / τ_max" features: beyond ±2 only "saturated" matters.
 _BASE_RATIO_BOUND = 2.0
+#: The bases whose feature block has q_r(s) − q per joint (``path_error_j_rad``), the error
+#: a control prior (``prior_gain_per_rad``) feeds back; a test keeps this equal to the
+#: controllers' blocks.
+PRIOR_BASES = ("passivity", "passivity_paper")
 
 
 def check_safeguards(
@@ -139,6 +159,24 @@ def check_safeguards(
         )
     if gate_deadband_rad > 0 and gate_rad is None:
         raise InvalidConfigError("gate_deadband_rad needs gate_rad (the gate it widens)")
+
+
+def check_prior(base: str | None, prior_gain_per_rad: float) -> None:
+    """Raise :class:`InvalidConfigError` unless ``prior_gain_per_rad`` is a finite real ≥ 0
+    (1/rad) that is 0 unless ``base`` is one of :data:`PRIOR_BASES` (None: a controller
+    object, whose feature block decides)."""
+    if (
+        isinstance(prior_gain_per_rad, bool)
+        or not isinstance(prior_gain_per_rad, (int, float))
+        or not (math.isfinite(prior_gain_per_rad) and prior_gain_per_rad >= 0)
+    ):
+        raise InvalidConfigError(
+            f"prior_gain_per_rad must be finite and >= 0, got {prior_gain_per_rad!r}"
+        )
+    if prior_gain_per_rad > 0 and base is not None and base not in PRIOR_BASES:
+        raise InvalidConfigError(
+            f"a control prior (prior_gain_per_rad) needs a base of {PRIOR_BASES}, got {base!r}"
+        )
 
 
 def check_base_gains(base_gains: str) -> None:
@@ -208,6 +246,8 @@ class ResidualWrapper(
             robot's default rates at the env's control rate) or ``"tuned"`` (the rates
             of ``agents/tuned``, as the main job runs it); must stay ``"default"`` for a
             controller object, whose gains are its own.
+        prior_gain_per_rad: g ≥ 0 (1/rad) of the control prior (module docstring); 0
+            (default): none.
 
     Raises:
         InvalidConfigError: (a ``ValueError``) a joint-count mismatch or a bad scale.
@@ -224,6 +264,7 @@ class ResidualWrapper(
         gate_deadband_rad: float = 0.0,
         scale_accel_rad_s2: float | None = None,
         base_gains: str = "default",
+        prior_gain_per_rad: float = 0.0,
     ) -> None:
         check_base_gains(base_gains)
         if not isinstance(controller, str) and base_gains != "default":
@@ -241,6 +282,7 @@ class ResidualWrapper(
                 gate_deadband_rad=gate_deadband_rad,
                 scale_accel_rad_s2=scale_accel_rad_s2,
                 base_gains=base_gains,
+                prior_gain_per_rad=prior_gain_per_rad,
             )
         super().__init__(env)
         u = env.unwrapped
@@ -284,6 +326,20 @@ class ResidualWrapper(
             high = np.concatenate([inner.high, self.features.high.astype(np.float32)])
             self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self._base_ratio = np.zeros(self.n)
+        check_prior(self._controller_name, prior_gain_per_rad)
+        self.prior_gain_per_rad = float(prior_gain_per_rad)
+        self._prior = np.zeros(self.n)  # a_prior at the measured state last observed
+        self._prior_features: ControllerFeatures | None = None  # None: no prior
+        if self.prior_gain_per_rad > 0:
+            feats = self.features or ControllerFeatures(controller, float(u.max_speed))
+            names = [f"path_error_{j}_rad" for j in range(self.n)]
+            if not set(names) <= set(feats.names):
+                raise InvalidConfigError(
+                    "a control prior needs the base's path_error_j_rad features; "
+                    f"{type(controller).__name__} has none"
+                )
+            self._prior_features = feats
+            self._prior_cols = np.array([feats.names.index(name) for name in names])
 
     @property
     def spec(self) -> EnvSpec | None:
@@ -301,12 +357,24 @@ class ResidualWrapper(
         """Names of the appended observation entries (empty without controller state)."""
         return self.features.names if self.features is not None else ()
 
+    @property
+    def prior_action(self) -> FloatArray:
+        """a_prior at the measured state last observed — what the next step adds to the
+        policy's action (zeros without a prior); a copy."""
+        return self._prior.copy()
+
     def _augment(self, obs: np.ndarray) -> np.ndarray:
-        if self.features is None:
+        """The observation with the controller block; also sets a_prior at this state."""
+        if self.features is None and self._prior_features is None:
             return obs
         q, qd = self.tracking_env.measured_joint_state()
-        feats = self.features(q, qd, self._base_ratio).astype(np.float32)
-        return np.concatenate([obs, feats])
+        feats = (self.features or self._prior_features)(q, qd, self._base_ratio)  # type: ignore[misc]
+        if self._prior_features is not None:
+            error = feats[self._prior_cols]  # q_r(s) − q (rad), float64
+            self._prior = np.minimum(np.maximum(self.prior_gain_per_rad * error, -1.0), 1.0)
+        if self.features is None:
+            return obs
+        return np.concatenate([obs, feats.astype(np.float32)])
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -324,8 +392,9 @@ class ResidualWrapper(
     def step(
         self, action: np.ndarray
     ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
-        """τ = τ_base + γ scale ⊙ clip(a, −1, 1) — or τ_base + M(q) γ α clip(a, −1, 1) with
-        ``scale_accel_rad_s2`` — (N·m), applied as ``torque_to_action(τ)``.
+        """τ = τ_base + γ scale ⊙ a_eff — or τ_base + M(q) γ α a_eff with
+        ``scale_accel_rad_s2`` — (N·m), applied as ``torque_to_action(τ)``; a_eff =
+        clip(a, −1, 1), or clip(a + a_prior, −1, 1) with a control prior.
 
         Raises:
             InvalidActionError: (a ``ValueError``) ``action`` is not of shape (n,) or has
@@ -344,14 +413,18 @@ class ResidualWrapper(
             penalty = -float(u.config.unstable_penalty)
             return self._last_obs, penalty, True, False, info
         a = np.minimum(np.maximum(a, -1.0), 1.0)
+        a_eff = a
+        if self._prior_features is not None:
+            prior = self._prior
+            a_eff = np.minimum(np.maximum(a + prior, -1.0), 1.0)
         gate = 1.0
         if self.gate_rad is not None:
             d = max(u.projector.nearest(q).distance - self.gate_deadband_rad, 0.0)
             gate = -math.expm1(-((d / self.gate_rad) ** 2))  # γ = 1 − exp(−((d − d₀)⁺/d_g)²)
         if self.scale_nm is not None:
-            tau_res = (gate * self.scale_nm) * a  # (n,) N·m; γ = 1 exactly without a gate
+            tau_res = (gate * self.scale_nm) * a_eff  # (n,) N·m; γ = 1 exactly without a gate
         else:  # M(q) γ α a: the acceleration α a (rad/s²) on the nominal model (cached M)
-            tau_res = u.model.mass_matrix(q) @ ((gate * self.scale_accel_rad_s2) * a)
+            tau_res = u.model.mass_matrix(q) @ ((gate * self.scale_accel_rad_s2) * a_eff)
         inner_action = torque_to_action(tau_base + tau_res, self.torque_limits_nm)
         obs, reward, terminated, truncated, info = self.env.step(inner_action)
         if self.action_penalty > 0.0:
@@ -360,6 +433,8 @@ class ResidualWrapper(
             info["reward_residual"] = bonus
         if self.gate_rad is not None:
             info["residual_gate"] = gate
+        if self._prior_features is not None:
+            info["residual_prior"] = prior
         self._base_ratio = tau_base / self.torque_limits_nm
         info["tau_base_nm"] = tau_base
         info["tau_residual_nm"] = tau_res
@@ -378,14 +453,15 @@ def make_residual_env(
     gate_deadband_rad: float = 0.0,
     scale_accel_rad_s2: float | None = None,
     base_gains: str = "default",
+    prior_gain_per_rad: float = 0.0,
     **env_kwargs: Any,
 ) -> ResidualWrapper:
     """``gym.make(env_id, **env_kwargs)`` wrapped in a :class:`ResidualWrapper` around
     the controller ``base`` (one of ``agents.registry.CONTROLLER_NAMES``) with
     ``base_gains`` ("default" or "tuned"), with scale = ``scale_fraction`` · τ_max (N·m)
     — or, with ``scale_accel_rad_s2`` α, the residual M(q) α a (an acceleration, module
-    docstring) — and the wrapper's ``action_penalty``, ``gate_rad`` and
-    ``gate_deadband_rad``.
+    docstring) — and the wrapper's ``action_penalty``, ``gate_rad``,
+    ``gate_deadband_rad`` and ``prior_gain_per_rad``.
 
     ``env_kwargs`` go to ``gym.make`` (env arguments such as ``control_hz``,
     ``disturbance``, and ``max_episode_steps``), which rejects unknown names.
@@ -395,10 +471,12 @@ def make_residual_env(
     """
     _check_base(base, scale_fraction, scale_accel_rad_s2)
     check_base_gains(base_gains)
+    check_prior(base, prior_gain_per_rad)
     env = gym.make(env_id, **env_kwargs)
     return _wrap(
         env, base, scale_fraction, include_controller_state,
         action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2, base_gains,
+        prior_gain_per_rad,
     )  # fmt: skip
 
 
@@ -431,6 +509,7 @@ def _wrap(
     gate_deadband_rad: float,
     scale_accel_rad_s2: float | None,
     base_gains: str = "default",
+    prior_gain_per_rad: float = 0.0,
 ) -> ResidualWrapper:
     """``env`` in a :class:`ResidualWrapper` around ``base`` (its ``base_gains``) with
     scale = ``scale_fraction`` · τ_max (N·m), or the acceleration authority
@@ -443,6 +522,7 @@ def _wrap(
         return ResidualWrapper(
             env, base, scale_nm, include_controller_state,
             action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2, base_gains,
+            prior_gain_per_rad,
         )  # fmt: skip
     except BaseException:
         env.close()
@@ -470,6 +550,7 @@ def residual_env(
     gate_deadband_rad: float = 0.0,
     scale_accel_rad_s2: float | None = None,
     base_gains: str = "default",
+    prior_gain_per_rad: float = 0.0,
     **env_kwargs: Any,
 ) -> ResidualWrapper:
     """The entry point of the registered residual ids (:func:`register_residual_envs`):
@@ -485,10 +566,12 @@ def residual_env(
 
     _check_base(base, scale_fraction, scale_accel_rad_s2)
     check_base_gains(base_gains)
+    check_prior(base, prior_gain_per_rad)
     env = TrackingEnv(robot=robot, **env_kwargs)
     wrapper = _wrap(
         env, base, scale_fraction, include_controller_state,
         action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2, base_gains,
+        prior_gain_per_rad,
     )  # fmt: skip
     wrapper._registered = True
     return wrapper

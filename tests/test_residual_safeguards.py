@@ -136,3 +136,149 @@ def test_gate_and_penalty_are_recorded_in_the_spec() -> None:
 def test_bad_safeguards_raise(kwargs) -> None:
     with pytest.raises(InvalidConfigError):
         make_residual_env(ID, "passivity", **kwargs, **KW)
+
+
+# -- the control prior -------------------------------------------------------------------
+def _path_error(env, obs) -> np.ndarray:
+    """q_r(s) − q from the observation's passivity block (float32)."""
+    names = list(env.feature_names)
+    inner = env.observation_space.shape[0] - len(names)
+    return np.array([obs[inner + names.index(f"path_error_{j}_rad")] for j in range(env.n)])
+
+
+@pytest.mark.parametrize("accel", [None, 10.0])
+def test_prior_adds_clipped_stiffness_to_the_learned_action(accel) -> None:
+    """τ_res = authority ⊙ clip(a + clip(g e, −1, 1), −1, 1), e = q_r(s) − q as the policy
+    observed it (float32 there, float64 in the wrapper), for random actions under impulses."""
+    g = 300.0
+    env = make_residual_env(ID, "passivity", prior_gain_per_rad=g, scale_accel_rad_s2=accel,
+                            disturbance="impulse", **KW)  # fmt: skip
+    rng = np.random.default_rng(5)
+    obs, _ = env.reset(seed=2)
+    u = env.unwrapped
+    seen_unsaturated = False
+    for _ in range(200):
+        a = rng.uniform(-1.0, 1.0, 2)
+        prior = np.clip(g * _path_error(env, obs), -1.0, 1.0)
+        seen_unsaturated |= bool(np.any(np.abs(prior) < 0.99) and np.any(np.abs(prior) > 1e-3))
+        q, _ = u.measured_joint_state()
+        authority = env.scale_nm if accel is None else None
+        obs, _, term, trunc, info = env.step(a)
+        np.testing.assert_allclose(info["residual_prior"], prior, rtol=1e-5, atol=1e-5)
+        a_eff = np.clip(a + info["residual_prior"], -1.0, 1.0)
+        expected = authority * a_eff if accel is None else u.model.mass_matrix(q) @ (accel * a_eff)
+        np.testing.assert_allclose(info["tau_residual_nm"], expected, rtol=1e-12, atol=1e-12)
+        if term or trunc:
+            break
+    assert seen_unsaturated  # the linear part of the clip was exercised, not only ±1
+    env.close()
+
+
+def test_prior_is_the_starting_policy_and_a_cancels_it() -> None:
+    """With a = 0 the residual is the prior's; a = −a_prior (the prior the wrapper reports for
+    the state the policy sees) cancels it: the episode is the base's, bit for bit."""
+    alone = make_residual_env(ID, "passivity", disturbance="impulse", **KW)
+    prior = make_residual_env(ID, "passivity", prior_gain_per_rad=1000.0, disturbance="impulse",
+                              **KW)  # fmt: skip
+    alone.reset(seed=4)
+    prior.reset(seed=4)
+    acted = False
+    for _ in range(150):
+        cancel = -prior.prior_action  # a_prior at the state about to be stepped
+        acted |= bool(np.any(cancel != 0.0))
+        o0, r0, t0, _, _ = alone.step(np.zeros(2))
+        o1, r1, t1, _, i1 = prior.step(cancel)
+        np.testing.assert_array_equal(o0, o1)
+        np.testing.assert_array_equal(i1["tau_residual_nm"], np.zeros(2))
+        assert (r0, t0) == (r1, t1)
+    assert acted
+    alone.close()
+    prior.close()
+
+
+def test_prior_changes_the_episode_and_the_gate_silences_it_on_the_path() -> None:
+    kw = {**KW, "max_episode_steps": 500}
+    base = make_residual_env(ID, "passivity", **kw)
+    open_ = make_residual_env(ID, "passivity", prior_gain_per_rad=1000.0, **kw)
+    gated = make_residual_env(ID, "passivity", prior_gain_per_rad=1000.0, gate_rad=0.002,
+                              gate_deadband_rad=0.002, **kw)  # fmt: skip
+    zero = np.zeros((500, 2))
+    b, o, g = episode(base, zero), episode(open_, zero), episode(gated, zero)
+    assert any(np.any(step[4]["tau_residual_nm"] != 0.0) for step in o)
+    assert not np.array_equal(b[-1][0], o[-1][0])
+    for s0, s1 in zip(b, g, strict=True):  # undisturbed, within the deadband: the base's
+        np.testing.assert_array_equal(s0[0], s1[0])
+    for env in (base, open_, gated):
+        env.close()
+
+
+def test_penalty_stays_on_the_learned_action_with_a_prior() -> None:
+    env = make_residual_env(ID, "passivity", prior_gain_per_rad=1000.0, action_penalty=0.1,
+                            disturbance="impulse", **KW)  # fmt: skip
+    env.reset(seed=0)
+    for _ in range(30):
+        _, _, _, _, info = env.step(np.zeros(2))
+        assert info["reward_residual"] == 0.1  # a = 0: the full bonus, whatever the prior
+    env.close()
+
+
+def test_prior_bases_are_the_controllers_with_a_path_error_block() -> None:
+    from agents.registry import CONTROLLER_NAMES
+    from agents.residual import PRIOR_BASES
+
+    has = []
+    for name in CONTROLLER_NAMES:
+        env = make_residual_env(ID, name, **KW)
+        if "path_error_0_rad" in env.feature_names:
+            has.append(name)
+        env.close()
+    assert tuple(has) == PRIOR_BASES
+
+
+def test_prior_is_recorded_in_the_spec_and_works_without_controller_state() -> None:
+    env = make_residual_env(ID, "passivity", prior_gain_per_rad=50.0, **KW)
+    again = env.spec.make()
+    assert again.prior_gain_per_rad == 50.0
+    bare = make_residual_env(ID, "passivity", prior_gain_per_rad=50.0,
+                             include_controller_state=False, **KW)  # fmt: skip
+    env.reset(seed=1, options={"q": env.unwrapped.path.evaluate(env.unwrapped.s0)[0] + 0.003})
+    bare.reset(seed=1, options={"q": bare.unwrapped.path.evaluate(bare.unwrapped.s0)[0] + 0.003})
+    i0, i1 = env.step(np.zeros(2))[4], bare.step(np.zeros(2))[4]
+    np.testing.assert_array_equal(i0["residual_prior"], i1["residual_prior"])
+    assert np.any(i0["residual_prior"] != 0.0)
+    for e in (env, again, bare):
+        e.close()
+
+
+@pytest.mark.parametrize(
+    ("base", "gain"),
+    [("passivity", -1.0), ("passivity", float("nan")), ("passivity", True),
+     ("passivity", "10"), ("computed_torque", 10.0), ("pd_gravity", 1.0)],
+)  # fmt: skip
+def test_bad_prior_is_refused_before_an_env_is_built(base, gain, monkeypatch) -> None:
+    import gymnasium as gym
+
+    def no_make(*args, **kwargs):
+        raise AssertionError("an env was built")
+
+    monkeypatch.setattr(gym, "make", no_make)
+    with pytest.raises(InvalidConfigError, match="prior"):
+        make_residual_env(ID, base, prior_gain_per_rad=gain, **KW)
+
+
+def test_prior_through_the_registered_id_passes_the_checkers() -> None:
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    from agents.residual import residual_env_id
+
+    env = gym.make(residual_env_id(ID, "passivity"), prior_gain_per_rad=1000.0, **KW)
+    assert env.get_wrapper_attr("prior_gain_per_rad") == 1000.0
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*different from the unwrapped.*")
+        check_env(env, skip_render_check=True)
+    sb3_check_env(env, warn=False)
+    env.close()

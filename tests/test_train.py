@@ -352,6 +352,7 @@ def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
         "gate_deadband_rad": 0.0,
         "scale_accel_rad_s2": None,
         "base_gains": "default",
+        "prior_gain_per_rad": 0.0,
     }
     from train.train import _env_factory
 
@@ -380,6 +381,22 @@ def test_tuned_base_gains_reach_the_training_env(tmp_path: Path) -> None:
         env.close()
 
 
+def test_control_prior_reaches_the_training_env(tmp_path: Path) -> None:
+    """--prior-gain-per-rad: the wrapper adds the stiffness prior to the learned action."""
+    from train.train import _env_factory
+
+    res = validate(
+        parse_args(argv(tmp_path / "p", "sac", "passivity", 10, "--prior-gain-per-rad", "1000",
+                        "--scale-accel-rad-s2", "10"))
+    )  # fmt: skip
+    assert res.residual_kwargs["prior_gain_per_rad"] == 1000.0
+    env = _env_factory(res, "none")()
+    try:
+        assert env.prior_gain_per_rad == 1000.0
+    finally:
+        env.close()
+
+
 def test_acceleration_authority_reaches_the_training_env(tmp_path: Path) -> None:
     """--scale-accel-rad-s2 replaces --scale-fraction: the wrapper's residual is M(q) α a."""
     from train.train import _env_factory
@@ -390,7 +407,7 @@ def test_acceleration_authority_reaches_the_training_env(tmp_path: Path) -> None
     )  # fmt: skip
     assert res.residual_kwargs == {
         "action_penalty": 0.0, "gate_rad": None, "gate_deadband_rad": 0.0,
-        "scale_accel_rad_s2": 10.0, "base_gains": "default",
+        "scale_accel_rad_s2": 10.0, "base_gains": "default", "prior_gain_per_rad": 0.0,
     }  # fmt: skip
     env = _env_factory(res, "none")()
     try:
@@ -419,6 +436,10 @@ def test_acceleration_authority_reaches_the_training_env(tmp_path: Path) -> None
         ["--scale-accel-rad-s2", "nan"],
         ["--residual", "none", "--base-gains", "tuned"],  # a base's gains without a base
         ["--env", "ptrack_gym/PandaTrack-v0", "--base-gains", "tuned"],  # none tuned there
+        ["--residual", "none", "--prior-gain-per-rad", "100"],  # a prior without a base
+        ["--residual", "computed_torque", "--prior-gain-per-rad", "100"],  # no path error
+        ["--prior-gain-per-rad", "-1"],
+        ["--prior-gain-per-rad", "inf"],
     ],
 )
 def test_bad_safeguard_options_raise_before_anything_runs(tmp_path: Path, extra: list[str]) -> None:
@@ -440,7 +461,7 @@ def test_to_argv_round_trips_every_field(tmp_path: Path) -> None:
         zero_init_residual=True, control_hz=500.0, episode_s=1.5, start="rest_near_path",
         reward_weights=[1.0, 0.0, 0.5], reward="kernel", kernel_weights=[1.0, 0.0, 0.0],
         max_path_distance=0.3, action_penalty=0.05, gate_rad=0.002, gate_deadband_rad=0.001,
-        base_gains="tuned",
+        base_gains="tuned", prior_gain_per_rad=100.0,
         critic_warmup_steps=10, actor_lr_scale=0.1, actor_bc_weight=0.5, torch_threads=2,
         verbose=1,
     )  # fmt: skip

@@ -65,7 +65,7 @@ GROUP_KEYS = (
     "reward_weights", "reward", "kernel_weights", "max_path_distance", "hyperparams",
     "overrides", "scale_fraction", "scale_accel_rad_s2", "zero_init_residual", "action_penalty",
     "gate_rad", "gate_deadband_rad", "init_log_std", "critic_warmup_steps", "actor_lr_scale",
-    "actor_bc_weight",
+    "actor_bc_weight", "prior_gain_per_rad",
 )  # fmt: skip
 
 #: ``train.train.TrainConfig``'s defaults of :data:`GROUP_KEYS` (a test keeps them equal;
@@ -76,7 +76,7 @@ GROUP_KEY_DEFAULTS: dict[str, object] = {
     "max_path_distance": None, "hyperparams": None, "overrides": {}, "scale_fraction": 0.1,
     "scale_accel_rad_s2": None, "zero_init_residual": False, "action_penalty": 0.0,
     "gate_rad": None, "gate_deadband_rad": 0.0, "init_log_std": None, "critic_warmup_steps": 0,
-    "actor_lr_scale": 1.0, "actor_bc_weight": 0.0,
+    "actor_lr_scale": 1.0, "actor_bc_weight": 0.0, "prior_gain_per_rad": 0.0,
 }  # fmt: skip
 
 #: The presets the final checkpoints are evaluated under (level 1), by default.

@@ -57,7 +57,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 from torch import nn
 
 from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
-from agents.residual import check_base_gains, check_safeguards
+from agents.residual import check_base_gains, check_prior, check_safeguards
 from ptrack_gym.envs.rewards import REWARD_MODES
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
@@ -195,6 +195,11 @@ class TrainConfig:
     """SAC/TD3 only: the actor's learning rate is this times the schedule's (the critic's
     and the entropy coefficient's keep it): with Adam, how far the actor's output moves per
     update scales with it (``scale_actor_lr``)."""
+    prior_gain_per_rad: float = 0.0
+    """Residual on passivity only: g (1/rad) of a control prior the learned action is added
+    to, a_eff = clip(a + clip(g (q_r(s) − q), −1, 1), −1, 1) (``agents.residual``); with
+    ``zero_init_residual`` the policy starts as the prior and ``actor_bc_weight`` pulls
+    toward it. 0: none."""
     actor_bc_weight: float = 0.0
     """SAC/TD3 only: λ of a behaviour-cloning term toward the base, λ·E_s[|μ(s)|²/n] added to
     the actor's loss (μ the deterministic action in [−1, 1]ⁿ, s drawn from the replay
@@ -305,8 +310,9 @@ def validate(cfg: TrainConfig) -> Resolved:
                 ),
             )
         if residual_kwargs:
-            safeguards = {k: v for k, v in residual_kwargs.items() if k != "base_gains"}
-            check_safeguards(**safeguards)
+            own = ("base_gains", "prior_gain_per_rad")
+            check_safeguards(**{k: v for k, v in residual_kwargs.items() if k not in own})
+            check_prior(cfg.residual, cfg.prior_gain_per_rad)
             if cfg.base_gains == "tuned":
                 tuned_rates(profile.name, cfg.residual)  # raises naming the tuned files there are
     except InvalidConfigError as exc:
@@ -361,7 +367,7 @@ def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
     for key in ("algo", "backend", "env_id", "residual", "scale_fraction", "scale_accel_rad_s2",
                 "base_gains", "start", "episode_s", "reward_weights", "reward", "kernel_weights",
                 "max_path_distance", "action_penalty", "gate_rad",
-                "gate_deadband_rad"):  # fmt: skip
+                "gate_deadband_rad", "prior_gain_per_rad"):  # fmt: skip
         if key in saved and saved[key] != getattr(cfg, key):
             raise TrainConfigError(
                 f"--resume: {key}={getattr(cfg, key)!r} differs from the run's {saved[key]!r}"
@@ -757,6 +763,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--action-penalty", type=float, default=d.action_penalty)
     p.add_argument("--gate-rad", type=float, default=None)
     p.add_argument("--gate-deadband-rad", type=float, default=d.gate_deadband_rad)
+    p.add_argument(
+        "--prior-gain-per-rad", type=float, default=d.prior_gain_per_rad,
+        help="residual on passivity: g (1/rad) of the control prior clip(g (q_r(s) - q))",
+    )  # fmt: skip
     p.add_argument("--init-log-std", type=float, default=None)
     p.add_argument("--critic-warmup-steps", type=int, default=d.critic_warmup_steps)
     p.add_argument(
