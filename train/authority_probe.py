@@ -2,8 +2,9 @@
 answers before any training does.
 
 The residual env's passivity block observes e = q_r(s) − q, the error to the controller's
-own reference point (``agents.residual``, features ``path_error_j_rad``). The probe's policy
-adds bang-bang stiffness toward it::
+own reference point (``agents.residual``, features ``path_error_j_rad``). The probe is the
+wrapper's control prior (``prior_gain_per_rad``) with the learned action held at 0: bang-bang
+stiffness toward that point::
 
     a = clip(g · e, −1, 1)        (g = 1000 1/rad: saturated beyond 1 mrad)
 
@@ -64,30 +65,28 @@ def probe(
     """Run the base (a = 0) and the probe's residual on ``seeds`` (see the module
     docstring) and return their mean path-distance RMS (rad)."""
     gate = {} if gate_rad is None else {"gate_rad": gate_rad, "gate_deadband_rad": gate_rad}
-    env = build_env(
-        env_id, base, 0.0, control_hz, max(1, round(episode_s * control_hz)), "on_path",
-        disturbance,
-        residual_kwargs={"base_gains": base_gains, "scale_accel_rad_s2": alpha, **gate},
-    )  # fmt: skip
-    try:
-        names = list(env.feature_names)
-        inner = env.observation_space.shape[0] - len(names)
-        cols = [inner + names.index(f"path_error_{j}_rad") for j in range(env.n)]
-        rms: dict[bool, list[float]] = {False: [], True: []}
-        for seed in seeds:
-            for use in (False, True):
-                obs, _ = env.reset(seed=seed)
+    rms: dict[float, list[float]] = {}
+    for gain in (0.0, PROBE_GAIN):  # the base alone (a = 0, no prior), then the probe
+        env = build_env(
+            env_id, base, 0.0, control_hz, max(1, round(episode_s * control_hz)), "on_path",
+            disturbance,
+            residual_kwargs={"base_gains": base_gains, "scale_accel_rad_s2": alpha,
+                             "prior_gain_per_rad": gain, **gate},
+        )  # fmt: skip
+        try:
+            zero = np.zeros(env.action_space.shape, dtype=np.float32)
+            for seed in seeds:
+                env.reset(seed=seed)
                 d2, done = [], False
                 while not done:
-                    a = np.clip(PROBE_GAIN * obs[cols], -1.0, 1.0) if use else np.zeros(env.n)
-                    obs, _, term, trunc, info = env.step(a.astype(np.float32))
+                    _, _, term, trunc, info = env.step(zero)
                     d2.append(info["path_distance"] ** 2)
                     done = term or trunc
-                rms[use].append(float(np.sqrt(np.mean(d2))))
-    finally:
-        env.close()
+                rms.setdefault(gain, []).append(float(np.sqrt(np.mean(d2))))
+        finally:
+            env.close()
     return ProbeResult(
-        disturbance, alpha, gate_rad, float(np.mean(rms[False])), float(np.mean(rms[True]))
+        disturbance, alpha, gate_rad, float(np.mean(rms[0.0])), float(np.mean(rms[PROBE_GAIN]))
     )
 
 
