@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants rl-iiwa-tuned-bc authority-probe rl-pure-sbx rl-pure-sbx-iiwa heldout clean check-python
+.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants rl-iiwa-tuned-bc rl-iiwa-tuned-prior authority-probe rl-pure-sbx rl-pure-sbx-iiwa rl-pure-sbx-iiwa-ent heldout clean check-python
 
 setup: $(STAMP)
 
@@ -198,11 +198,25 @@ authority-probe: setup
 	$(PY) -m train.authority_probe --base passivity --base-gains tuned --control-hz 1000 --alpha 1 3 10 --gate 0.002 --disturbance none impulse periodic payload noise
 	$(PY) -m train.authority_probe --base passivity --base-gains tuned --control-hz 1000 --alpha 10 --disturbance none impulse periodic payload noise
 
+# The BC recipe with the probe's feedback as a control prior (prior_gain_per_rad 1000), two
+# one-seed screens (trained ungated, trained gated; about 25 min on 2 cores); the ungated run is
+# also evaluated gated at evaluation (a deploy.yml copy beside it).
+rl-iiwa-tuned-prior: setup
+	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa_tuned_prior.yml --out runs/rl_study_iiwa_tuned_prior --workers 2
+	$(call deploy_copy,runs/rl_study_iiwa_tuned_prior/residual-passivity-tuned-prior_s0,runs/rl_study_iiwa_tuned_prior/residual-passivity-tuned-prior-deploy_s0,100000)
+	$(PY) -m train.rl_study --runs runs/rl_study_iiwa_tuned_prior --out docs/results/rl_study_iiwa_tuned_prior --episodes 10 --every 50000 --no-progress
+
 # Pure SAC on the iiwa with sbx: the two-link's pure recipe, 2 seeds to 400 000 steps (about
 # 35 min on 2 cores), evaluated every 100 000 steps.
 rl-pure-sbx-iiwa: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_pure_sbx_iiwa.yml --out runs/rl_pure_sbx_iiwa --workers 2
 	$(PY) -m train.rl_study --runs runs/rl_pure_sbx_iiwa --out docs/results/rl_pure_sbx_iiwa --episodes 10 --every 100000 --no-progress
+
+# Its second try: two one-seed screens that keep the entropy bonus small (a fixed coefficient;
+# a tuned one with a target entropy sized for precision), 300 000 steps (about 25 min).
+rl-pure-sbx-iiwa-ent: setup
+	$(PY) -m train.rl_campaign --config train/configs/rl_pure_sbx_iiwa_ent.yml --out runs/rl_pure_sbx_iiwa_ent --workers 2
+	$(PY) -m train.rl_study --runs runs/rl_pure_sbx_iiwa_ent --out docs/results/rl_pure_sbx_iiwa_ent --episodes 10 --every 100000 --no-progress
 
 # Pure SAC on the two-link with the sbx backend (make setup installs it, after torch):
 # 5 seeds to 300 000 steps (about 1 h of training on 2 cores), evaluated every 60 000 steps

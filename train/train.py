@@ -204,7 +204,8 @@ class TrainConfig:
     """SAC/TD3 only: λ of a behaviour-cloning term toward the base, λ·E_s[|μ(s)|²/n] added to
     the actor's loss (μ the deterministic action in [−1, 1]ⁿ, s drawn from the replay
     buffer; TD3+BC's term with the base's action 0 as the target): the actor leaves 0 only
-    where the critic's action gradient exceeds 2λ|μ_j|/n (``add_actor_bc``)."""
+    where the critic's action gradient exceeds 2λ|μ_j|/n (``add_actor_bc``). With a control
+    prior (``prior_gain_per_rad``) a = 0 is the prior, so the pull is toward it."""
     torch_threads: int = 1
     """``torch.set_num_threads`` (the machines are shared: keep 1)."""
     device: str = "cpu"
@@ -775,7 +776,7 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     p.add_argument(
         "--actor-bc-weight", type=float, default=d.actor_bc_weight,
-        help="SAC/TD3: weight of a term pulling the actor's action toward 0 (the base)",
+        help="SAC/TD3: weight of a term pulling the actor's action toward 0 (the base or prior)",
     )  # fmt: skip
     p.add_argument("--torch-threads", type=int, default=d.torch_threads)
     p.add_argument("--device", default=d.device)
