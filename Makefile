@@ -183,7 +183,7 @@ rl-iiwa-tuned-variants: setup
 	$(call deploy_copy,runs/rl_study_iiwa_tuned_variants/residual-passivity-tuned-bc_s0,runs/rl_study_iiwa_tuned_variants/residual-passivity-tuned-bc-deploy_s0,100000)
 	$(PY) -m train.rl_study --runs runs/rl_study_iiwa_tuned_variants --out docs/results/rl_study_iiwa_tuned_variants --episodes 10 --every 50000 --no-progress
 
-# The BC screen on 3 seeds (seed 0 is the screen's run, copied), gated at evaluation.
+# The BC screen on 5 seeds (seed 0 is the screen's run, copied), gated at evaluation.
 IIWA_BC := runs/rl_study_iiwa_tuned_bc
 IIWA_BC_GATED := runs/rl_deploy_iiwa_tuned_bc
 rl-iiwa-tuned-bc: setup
@@ -213,7 +213,7 @@ rl-pure-sbx-iiwa: setup
 	$(PY) -m train.rl_study --runs runs/rl_pure_sbx_iiwa --out docs/results/rl_pure_sbx_iiwa --episodes 10 --every 100000 --no-progress
 
 # Its second try: two one-seed screens that keep the entropy bonus small (a fixed coefficient;
-# a tuned one with a target entropy sized for precision), 300 000 steps (about 25 min).
+# a tuned one with a target entropy sized for precision), 200 000 steps (about 20 min).
 rl-pure-sbx-iiwa-ent: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_pure_sbx_iiwa_ent.yml --out runs/rl_pure_sbx_iiwa_ent --workers 2
 	$(PY) -m train.rl_study --runs runs/rl_pure_sbx_iiwa_ent --out docs/results/rl_pure_sbx_iiwa_ent --episodes 10 --every 100000 --no-progress
