@@ -85,11 +85,13 @@ Safeguards (both off by default, so a = 0 stays bit-identical to the base):
       a_{prior} = \\mathrm{clip}(g\\,(q_r(s) - q), -1, 1), \\qquad
       a_{eff} = \\mathrm{clip}(a + a_{prior}, -1, 1),
 
-  with q_r(s) − q the base's ``path_error_j_rad`` features (bases of
-  :data:`PRIOR_BASES`) at the measured state the policy observes, and a_eff in place of a
-  in τ_res (gated alike). A zero-initialised actor then starts as the prior, and the
-  behaviour-cloning pull toward a = 0 (``train.train``'s ``actor_bc_weight``) becomes a pull
-  toward it. g = 1000 1/rad is ``train.authority_probe``'s probe. ``info["residual_prior"]``
+  with q_r(s) − q the base's own reference error at the measured state the policy
+  observes (:data:`PRIOR_ERROR_FEATURES`: the passivity block's ``path_error_j_rad``, s its
+  path parameter; the time-indexed blocks' ``e_j_rad``, s their clock; bases of
+  :data:`PRIOR_BASES`), and a_eff in place of a in τ_res (gated alike). A zero-initialised
+  actor then starts as the prior, and the behaviour-cloning pull toward a = 0
+  (``train.train``'s ``actor_bc_weight``) becomes a pull toward it. g = 1000 1/rad is
+  ``train.authority_probe``'s probe. ``info["residual_prior"]``
   is a_prior; the action penalty stays on the learned a.
 
 Info (every step): ``tau_base_nm`` τ_base, ``tau_residual_nm`` γ scale ⊙ a_eff or
@@ -120,10 +122,24 @@ from ptrack_gym.errors import InvalidActionError, InvalidConfigError
 DEFAULT_SCALE_FRACTION = 0.1
 #: Bound of the "last τ_base / τ_max" features: beyond ±2 only "saturated" matters.
 _BASE_RATIO_BOUND = 2.0
-#: The bases whose feature block has q_r(s) − q per joint (``path_error_j_rad``), the error
-#: a control prior (``prior_gain_per_rad``) feeds back; a test keeps this equal to the
-#: controllers' blocks.
-PRIOR_BASES = ("passivity", "passivity_paper")
+#: The feature names, per joint j, of the error to the base's own reference point that a
+#: control prior (``prior_gain_per_rad``) feeds back, in order of preference: the passivity
+#: block's q_r(s) − q (s the controller's path parameter) and the time-indexed blocks'
+#: e = q_r(s) − q (s the controller's clock).
+PRIOR_ERROR_FEATURES = ("path_error_{j}_rad", "e_{j}_rad")
+#: The bases whose feature block has one of :data:`PRIOR_ERROR_FEATURES` for every joint; a
+#: test keeps this equal to the controllers' blocks.
+PRIOR_BASES = ("passivity", "passivity_paper", "computed_torque", "pd_gravity", "slotine_li")
+
+
+def prior_error_names(names: tuple[str, ...], n: int) -> list[str] | None:
+    """The names, in ``names``, of the n-joint reference error a control prior feeds back
+    (the first of :data:`PRIOR_ERROR_FEATURES` present for every joint), or None."""
+    for pattern in PRIOR_ERROR_FEATURES:
+        wanted = [pattern.format(j=j) for j in range(n)]
+        if set(wanted) <= set(names):
+            return wanted
+    return None
 
 
 def check_safeguards(
@@ -332,11 +348,11 @@ class ResidualWrapper(
         self._prior_features: ControllerFeatures | None = None  # None: no prior
         if self.prior_gain_per_rad > 0:
             feats = self.features or ControllerFeatures(controller, float(u.max_speed))
-            names = [f"path_error_{j}_rad" for j in range(self.n)]
-            if not set(names) <= set(feats.names):
+            names = prior_error_names(feats.names, self.n)
+            if names is None:
                 raise InvalidConfigError(
-                    "a control prior needs the base's path_error_j_rad features; "
-                    f"{type(controller).__name__} has none"
+                    "a control prior needs the base's reference-error features "
+                    f"({' or '.join(PRIOR_ERROR_FEATURES)}); {type(controller).__name__} has none"
                 )
             self._prior_features = feats
             self._prior_cols = np.array([feats.names.index(name) for name in names])
@@ -370,7 +386,7 @@ class ResidualWrapper(
         q, qd = self.tracking_env.measured_joint_state()
         feats = (self.features or self._prior_features)(q, qd, self._base_ratio)  # type: ignore[misc]
         if self._prior_features is not None:
-            error = feats[self._prior_cols]  # q_r(s) − q (rad), float64
+            error = feats[self._prior_cols]  # q_r(s) − q (rad), float64, clipped to ±2π
             self._prior = np.minimum(np.maximum(self.prior_gain_per_rad * error, -1.0), 1.0)
         if self.features is None:
             return obs

@@ -222,17 +222,45 @@ def test_penalty_stays_on_the_learned_action_with_a_prior() -> None:
     env.close()
 
 
-def test_prior_bases_are_the_controllers_with_a_path_error_block() -> None:
+def test_prior_bases_are_the_controllers_with_a_reference_error_block() -> None:
     from agents.registry import CONTROLLER_NAMES
-    from agents.residual import PRIOR_BASES
+    from agents.residual import PRIOR_BASES, prior_error_names
 
     has = []
     for name in CONTROLLER_NAMES:
         env = make_residual_env(ID, name, **KW)
-        if "path_error_0_rad" in env.feature_names:
+        if prior_error_names(env.feature_names, env.n) is not None:
             has.append(name)
         env.close()
     assert tuple(has) == PRIOR_BASES
+
+
+@pytest.mark.parametrize("base", ["computed_torque", "pd_gravity", "slotine_li"])
+def test_prior_on_a_time_indexed_base_is_stiffness_toward_its_clock(base: str) -> None:
+    """On a time-indexed base the prior's error is q_r(s) − q at the controller's clock s,
+    computed here from the path itself (not from the feature block), for the state the
+    policy observed; its residual torque is authority ⊙ clip(a + a_prior, −1, 1)."""
+    g = 300.0
+    env = make_residual_env(ID, base, prior_gain_per_rad=g, disturbance="impulse", **KW)
+    rng = np.random.default_rng(8)
+    env.reset(seed=3)
+    u, clock = env.unwrapped, env.controller.clock
+    seen_unsaturated = False
+    for _ in range(200):
+        q, _ = u.measured_joint_state()
+        expected = np.clip(g * (u.path.evaluate(clock.s)[0] - q), -1.0, 1.0)
+        np.testing.assert_allclose(env.prior_action, expected, rtol=0, atol=1e-12)
+        seen_unsaturated |= bool(np.any(np.abs(expected) < 0.99) and np.any(expected != 0))
+        a = rng.uniform(-1.0, 1.0, 2)
+        _, _, term, trunc, info = env.step(a)
+        np.testing.assert_array_equal(info["residual_prior"], expected)
+        np.testing.assert_allclose(
+            info["tau_residual_nm"], env.scale_nm * np.clip(a + expected, -1.0, 1.0), rtol=1e-12
+        )
+        if term or trunc:
+            break
+    assert seen_unsaturated
+    env.close()
 
 
 def test_prior_is_recorded_in_the_spec_and_works_without_controller_state() -> None:
@@ -253,7 +281,7 @@ def test_prior_is_recorded_in_the_spec_and_works_without_controller_state() -> N
 @pytest.mark.parametrize(
     ("base", "gain"),
     [("passivity", -1.0), ("passivity", float("nan")), ("passivity", True),
-     ("passivity", "10"), ("computed_torque", 10.0), ("pd_gravity", 1.0)],
+     ("passivity", "10"), ("computed_torque", -10.0), ("pd_gravity", float("inf"))],
 )  # fmt: skip
 def test_bad_prior_is_refused_before_an_env_is_built(base, gain, monkeypatch) -> None:
     import gymnasium as gym

@@ -1,8 +1,10 @@
 """How much can a residual of a given authority gain over its base? A hand-made residual
 answers before any training does.
 
-The residual env's passivity block observes e = q_r(s) − q, the error to the controller's
-own reference point (``agents.residual``, features ``path_error_j_rad``). The probe is the
+The residual env's controller block observes e = q_r(s) − q, the error to the controller's
+own reference point (``agents.residual.PRIOR_ERROR_FEATURES``: the passivity block's
+``path_error_j_rad``, s its path parameter; a time-indexed base's ``e_j_rad``, s its clock).
+The probe is the
 wrapper's control prior (``prior_gain_per_rad``) with the learned action held at 0: bang-bang
 stiffness toward that point::
 
@@ -30,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents.registry import GAIN_CHOICES
+from agents.residual import PRIOR_BASES
 from train.envs import build_env
 
 #: The probe's gain g (1/rad): the action saturates beyond 1 mrad of error.
@@ -93,7 +96,7 @@ def probe(
 def main(argv: Sequence[str] | None = None) -> list[ProbeResult]:
     p = argparse.ArgumentParser(prog="python -m train.authority_probe", description=__doc__)
     p.add_argument("--env", dest="env_id", default="ptrack_gym/IiwaTrack-v0")
-    p.add_argument("--base", default="passivity", choices=("passivity", "passivity_paper"))
+    p.add_argument("--base", default="passivity", choices=PRIOR_BASES)
     p.add_argument("--base-gains", choices=GAIN_CHOICES, default="default")
     p.add_argument("--control-hz", type=float, default=1000.0)
     p.add_argument("--episode-s", type=float, default=5.0)

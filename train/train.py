@@ -196,8 +196,9 @@ class TrainConfig:
     and the entropy coefficient's keep it): with Adam, how far the actor's output moves per
     update scales with it (``scale_actor_lr``)."""
     prior_gain_per_rad: float = 0.0
-    """Residual on passivity only: g (1/rad) of a control prior the learned action is added
-    to, a_eff = clip(a + clip(g (q_r(s) − q), −1, 1), −1, 1) (``agents.residual``); with
+    """Residuals only: g (1/rad) of a control prior the learned action is added to,
+    a_eff = clip(a + clip(g (q_r(s) − q), −1, 1), −1, 1), q_r(s) − q the base's own reference
+    error (``agents.residual.PRIOR_ERROR_FEATURES``); with
     ``zero_init_residual`` the policy starts as the prior and ``actor_bc_weight`` pulls
     toward it. 0: none."""
     actor_bc_weight: float = 0.0
@@ -766,7 +767,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gate-deadband-rad", type=float, default=d.gate_deadband_rad)
     p.add_argument(
         "--prior-gain-per-rad", type=float, default=d.prior_gain_per_rad,
-        help="residual on passivity: g (1/rad) of the control prior clip(g (q_r(s) - q))",
+        help="residuals: g (1/rad) of the control prior clip(g (q_r(s) - q)), the base's own error",
     )  # fmt: skip
     p.add_argument("--init-log-std", type=float, default=None)
     p.add_argument("--critic-warmup-steps", type=int, default=d.critic_warmup_steps)
