@@ -206,23 +206,23 @@ rl-iiwa-tuned-prior: setup
 	$(call deploy_copy,runs/rl_study_iiwa_tuned_prior/residual-passivity-tuned-prior_s0,runs/rl_study_iiwa_tuned_prior/residual-passivity-tuned-prior-deploy_s0,100000)
 	$(PY) -m train.rl_study --runs runs/rl_study_iiwa_tuned_prior --out docs/results/rl_study_iiwa_tuned_prior --episodes 10 --every 50000 --no-progress
 
+# $(call gated_study,CONFIG,RUNS,GATED,RESULTS): a campaign of 100 000-step residual runs
+# (CONFIG into RUNS), each copied by deploy_all to GATED with the 2-mrad deadband gate put
+# on at evaluation, and the study of those copies under every preset into RESULTS.
+gated_study = $(PY) -m train.rl_campaign --config $(1) --out $(2) --workers 2 && \
+  $(call deploy_all,$(2),$(3),100000) && \
+  $(PY) -m train.rl_study --runs $(3) --out $(4) --episodes 10 --no-progress
+
 # The control-prior recipe on 5 seeds (trained ungated; about 25 min on 2 cores), gated at
-# evaluation (the 2-mrad deadband) and studied under every preset.
-IIWA_PRIOR := runs/rl_study_iiwa_tuned_prior_seeds
-IIWA_PRIOR_GATED := runs/rl_deploy_iiwa_tuned_prior
+# evaluation.
 rl-iiwa-tuned-prior-seeds: setup
-	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa_tuned_prior_seeds.yml --out $(IIWA_PRIOR) --workers 2
-	$(call deploy_all,$(IIWA_PRIOR),$(IIWA_PRIOR_GATED),100000)
-	$(PY) -m train.rl_study --runs $(IIWA_PRIOR_GATED) --out docs/results/rl_deploy_iiwa_tuned_prior --episodes 10 --no-progress
+	$(call gated_study,train/configs/rl_study_iiwa_tuned_prior_seeds.yml,runs/rl_study_iiwa_tuned_prior_seeds,runs/rl_deploy_iiwa_tuned_prior,docs/results/rl_deploy_iiwa_tuned_prior)
 
 # The same recipe over the main job's computed-torque controller (its prior: stiffness toward
-# the controller's clock-indexed reference), 5 seeds (about 25 min on 2 cores), gated at evaluation.
-IIWA_PRIOR_CT := runs/rl_study_iiwa_tuned_prior_ct
-IIWA_PRIOR_CT_GATED := runs/rl_deploy_iiwa_tuned_prior_ct
+# the controller's clock-indexed reference), 5 seeds (about 25 min on 2 cores), gated at
+# evaluation.
 rl-iiwa-tuned-prior-ct: setup
-	$(PY) -m train.rl_campaign --config train/configs/rl_study_iiwa_tuned_prior_ct.yml --out $(IIWA_PRIOR_CT) --workers 2
-	$(call deploy_all,$(IIWA_PRIOR_CT),$(IIWA_PRIOR_CT_GATED),100000)
-	$(PY) -m train.rl_study --runs $(IIWA_PRIOR_CT_GATED) --out docs/results/rl_deploy_iiwa_tuned_prior_ct --episodes 10 --no-progress
+	$(call gated_study,train/configs/rl_study_iiwa_tuned_prior_ct.yml,runs/rl_study_iiwa_tuned_prior_ct,runs/rl_deploy_iiwa_tuned_prior_ct,docs/results/rl_deploy_iiwa_tuned_prior_ct)
 
 # Pure SAC on the iiwa with sbx: the two-link's pure recipe, 2 seeds to 400 000 steps (about
 # 35 min on 2 cores), evaluated every 100 000 steps.
