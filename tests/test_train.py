@@ -437,7 +437,7 @@ def test_acceleration_authority_reaches_the_training_env(tmp_path: Path) -> None
         ["--residual", "none", "--base-gains", "tuned"],  # a base's gains without a base
         ["--env", "ptrack_gym/PandaTrack-v0", "--base-gains", "tuned"],  # none tuned there
         ["--residual", "none", "--prior-gain-per-rad", "100"],  # a prior without a base
-        ["--residual", "computed_torque", "--prior-gain-per-rad", "100"],  # no path error
+        ["--residual", "computed_torque", "--prior-gain-per-rad", "nan"],
         ["--prior-gain-per-rad", "-1"],
         ["--prior-gain-per-rad", "inf"],
     ],
