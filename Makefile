@@ -29,12 +29,13 @@ $(STAMP): pyproject.toml constraints.txt | check-python
 	$(PY) -m pip install --quiet -c constraints.txt -e ".[dev]"
 	touch $(STAMP)
 
-# The main job: two paired sweeps (iiwa, model-based controllers; two-link with the shipped
-# residual SAC). No --resume: results of older code or another model are never reused
+# The main job: three paired sweeps (iiwa, model-based controllers; two-link with the shipped
+# SAC policies; iiwa with the shipped residual SAC). No --resume: results of older code or another model are never reused
 # silently; an existing results/ folder is refused with a message saying what to do.
 run: setup
 	$(PY) -m train.evaluate --config train/configs/main.yml --out results/main --no-progress
 	$(PY) -m train.evaluate --config train/configs/main_rl.yml --out results/main_rl --no-progress
+	$(PY) -m train.evaluate --config train/configs/main_rl_iiwa.yml --out results/main_rl_iiwa --no-progress
 
 # Pure SAC on a longer budget: the study's pure runs of seeds 0 and 1 (needs rl-study's
 # runs/) resumed to 600 000 steps, 2 processes (about 1 h on 2 cores), then evaluated.

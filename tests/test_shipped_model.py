@@ -1,6 +1,7 @@
-"""The models shipped in ``models/``: the main job's second sweep
-(``train/configs/main_rl.yml``) must be able to run each without training, and each must
-be the small, reproducible artefact its README describes."""
+"""The models shipped in ``models/``: the main job's RL sweeps
+(``train/configs/main_rl.yml``, the two-link; ``train/configs/main_rl_iiwa.yml``, the iiwa)
+must be able to run each without training, and each must be the small, reproducible artefact
+its README describes."""
 
 from __future__ import annotations
 
@@ -22,15 +23,23 @@ from train.sb3_runs import sb3_files
 from train.train import parse_args
 
 ROOT = Path(__file__).resolve().parents[1]
-MAIN_RL = ROOT / "train/configs/main_rl.yml"
-MODELS = [c for c in yaml.safe_load(MAIN_RL.read_text())["controllers"] if c.startswith("sb3:")]
+MAIN_RL = (ROOT / "train/configs/main_rl.yml", ROOT / "train/configs/main_rl_iiwa.yml")
+#: Each shipped model with the main-job config that evaluates it.
+CONFIG_OF = {
+    c: config
+    for config in MAIN_RL
+    for c in yaml.safe_load(config.read_text())["controllers"]
+    if c.startswith("sb3:")
+}
+MODELS = sorted(CONFIG_OF)
 
 
-def test_main_rl_config_includes_every_shipped_model_and_validates(monkeypatch) -> None:
-    monkeypatch.chdir(ROOT)  # the config names the models relative to the repository
+def test_main_rl_configs_include_every_shipped_model_and_validate(monkeypatch) -> None:
+    monkeypatch.chdir(ROOT)  # the configs name the models relative to the repository
     shipped = {f"sb3:models/{p.name}" for p in (ROOT / "models").iterdir() if p.is_dir()}
     assert shipped == set(MODELS)
-    load_config(MAIN_RL, []).validate()  # the files exist, trained on the config's env
+    for config in MAIN_RL:
+        load_config(config, []).validate()  # the files exist, trained on the config's env
 
 
 @pytest.mark.parametrize("model", MODELS)
@@ -56,12 +65,12 @@ def test_shipped_model_runs_deterministically_and_acts(model: str, monkeypatch) 
     broken observation layout or a failed load would not give a finite, repeatable,
     non-trivial run)."""
     monkeypatch.chdir(ROOT)
-    cfg = load_config(MAIN_RL, ["episode_s=1.0"])
+    cfg = load_config(CONFIG_OF[model], ["episode_s=1.0"])
     settings: EpisodeSettings = cfg.settings()
     task = Task(model, "impulse", 1.0, 0, 0)
     row_a, trace = run_episode(task, settings, keep_trace=True)
     row_b, _ = run_episode(task, settings, keep_trace=False)
-    assert row_a["steps"] == 250  # 1 s at the model's 250 Hz
+    assert row_a["steps"] == round(cfg.control_hz)  # 1 s at the model's rate
     for key, value in row_a.items():
         if key != "wall_s":
             assert row_b[key] == value or (value != value and row_b[key] != row_b[key]), key
@@ -73,10 +82,13 @@ def test_shipped_model_runs_deterministically_and_acts(model: str, monkeypatch) 
         alone, _ = run_episode(Task(base["residual"], "impulse", 1.0, 0, 0), settings)
         assert row_a["tau_rms_frac"] != alone["tau_rms_frac"]  # the residual acted
     elif gated:  # on the path it is its base, bit for bit; pushed off it, it acts
-        for disturbance, same in (("none", True), ("periodic", False)):
-            level = 0.0 if disturbance == "none" else 1.0  # periodic: off the path at once
+        gate = yaml.safe_load((ROOT / sb3_files(model)[0] / "deploy.yml").read_text())
+        band = gate["gate_deadband_rad"]
+        for disturbance, same in (("none", True), ("noise", False)):
+            level = 0.0 if disturbance == "none" else 1.0  # noise: off the band within 1 s
             row, _ = run_episode(Task(model, disturbance, level, 0, 0), settings)
             alone, _ = run_episode(Task(base["residual"], disturbance, level, 0, 0), settings)
+            assert (alone["path_dist_max"] > band) != same  # the base left the band or not
             assert (row["tau_rms_frac"] == alone["tau_rms_frac"]) == same, disturbance
     else:
         assert row_a["path_dist_rms"] < 0.1  # a pure policy that tracks, roughly
