@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants rl-iiwa-tuned-bc rl-iiwa-tuned-prior rl-iiwa-tuned-prior-seeds rl-iiwa-tuned-prior-ct authority-probe rl-pure-sbx rl-pure-sbx-iiwa rl-pure-sbx-iiwa-ent heldout clean check-python
+.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants rl-iiwa-tuned-bc rl-iiwa-tuned-prior rl-iiwa-tuned-prior-seeds rl-iiwa-tuned-prior-ct rl-iiwa-prior-alone prior-vs-learned authority-probe rl-pure-sbx rl-pure-sbx-iiwa rl-pure-sbx-iiwa-ent heldout clean check-python
 
 setup: $(STAMP)
 
@@ -207,11 +207,12 @@ rl-iiwa-tuned-prior: setup
 	$(call deploy_copy,runs/rl_study_iiwa_tuned_prior/residual-passivity-tuned-prior_s0,runs/rl_study_iiwa_tuned_prior/residual-passivity-tuned-prior-deploy_s0,100000)
 	$(PY) -m train.rl_study --runs runs/rl_study_iiwa_tuned_prior --out docs/results/rl_study_iiwa_tuned_prior --episodes 10 --every 50000 --no-progress
 
-# $(call gated_study,CONFIG,RUNS,GATED,RESULTS): a campaign of 100 000-step residual runs
-# (CONFIG into RUNS), each copied by deploy_all to GATED with the 2-mrad deadband gate put
-# on at evaluation, and the study of those copies under every preset into RESULTS.
+# $(call gated_study,CONFIG,RUNS,GATED,RESULTS[,STEPS]): a campaign of STEPS-step (default
+# 100 000) residual runs (CONFIG into RUNS), each copied by deploy_all to GATED with the 2-mrad
+# deadband gate put on at evaluation, and the study of those copies under every preset into
+# RESULTS.
 gated_study = $(PY) -m train.rl_campaign --config $(1) --out $(2) --workers 2 && \
-  $(call deploy_all,$(2),$(3),100000) && \
+  $(call deploy_all,$(2),$(3),$(or $(5),100000)) && \
   $(PY) -m train.rl_study --runs $(3) --out $(4) --episodes 10 --no-progress
 
 # The control-prior recipe on 5 seeds (trained ungated; about 25 min on 2 cores), gated at
@@ -224,6 +225,19 @@ rl-iiwa-tuned-prior-seeds: setup
 # evaluation.
 rl-iiwa-tuned-prior-ct: setup
 	$(call gated_study,train/configs/rl_study_iiwa_tuned_prior_ct.yml,runs/rl_study_iiwa_tuned_prior_ct,runs/rl_deploy_iiwa_tuned_prior_ct,docs/results/rl_deploy_iiwa_tuned_prior_ct)
+
+# The control prior alone, through the same harness and test episodes: each recipe stopped at
+# 1 000 steps, inside its critic warm-up, so the zero-initialised actor outputs exactly 0
+# (about 4 min on 2 cores).
+rl-iiwa-prior-alone: setup
+	$(call gated_study,train/configs/rl_prior_alone_iiwa.yml,runs/rl_prior_alone_iiwa,runs/rl_deploy_prior_alone_iiwa,docs/results/rl_deploy_prior_alone_iiwa,1000)
+	$(PY) -m train.action_probe runs/rl_deploy_prior_alone_iiwa/*
+
+# The trained prior residuals against the prior alone, paired on the same test episodes (needs
+# the runs of the three targets above; about 3 min each on 2 cores).
+prior-vs-learned: setup
+	for b in passivity computed_torque; do $(PY) -m train.evaluate \
+	  --config train/configs/prior_vs_learned_$${b}_iiwa.yml --no-progress || exit 1; done
 
 # Pure SAC on the iiwa with sbx: the two-link's pure recipe, 2 seeds to 400 000 steps (about
 # 35 min on 2 cores), evaluated every 100 000 steps.
