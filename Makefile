@@ -91,10 +91,10 @@ deploy_copy = mkdir -p $(2)/checkpoints && \
   cp -a $(1)/checkpoints/rl_model_$(or $(3),60000)_steps.zip $(1)/checkpoints/rl_model_vecnormalize_$(or $(3),60000)_steps.pkl $(2)/checkpoints/ && \
   printf 'gate_rad: 0.002\ngate_deadband_rad: 0.002\n' > $(2)/deploy.yml
 # $(call deploy_all,RUNS,DEST[,STEPS]): every residual run <group>_s<seed> of RUNS copied by
-# deploy_copy to DEST/<group>-deploy_s<seed>.
+# deploy_copy to DEST/<group>-deploy_s<seed>; the first failed copy stops the recipe.
 HASH := \#
 deploy_all = for src in $(1)/residual-*_s*; do \
-	  b=$$(basename $$src); $(call deploy_copy,$$src,$(2)/$${b%_s*}-deploy_s$${b$(HASH)$(HASH)*_s},$(3)); \
+	  b=$$(basename $$src); $(call deploy_copy,$$src,$(2)/$${b%_s*}-deploy_s$${b$(HASH)$(HASH)*_s},$(3)) || exit 1; \
 	done
 GATED := runs/rl_deploy_deadband_two_link
 rl-gated-eval: setup
@@ -234,7 +234,8 @@ rl-iiwa-prior-alone: setup
 	$(PY) -m train.action_probe runs/rl_deploy_prior_alone_iiwa/*
 
 # The trained prior residuals against the prior alone, paired on the same test episodes (needs
-# the runs of the three targets above; about 3 min each on 2 cores).
+# the runs of the three targets above; about 3 min each on 2 cores). Like every sweep it
+# refuses to overwrite its committed results: move them aside to re-run.
 prior-vs-learned: setup
 	for b in passivity computed_torque; do $(PY) -m train.evaluate \
 	  --config train/configs/prior_vs_learned_$${b}_iiwa.yml --no-progress || exit 1; done

@@ -3,10 +3,10 @@ searches and the RL configs name controllers, presets and tuned gains that exist
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import pytest
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = sorted((ROOT / "train" / "configs").glob("*.yml"))
@@ -31,7 +31,13 @@ def _loader(name: str):
     text = (ROOT / "train" / "configs" / f"{name}.yml").read_text()
     if "sb3:" in text:
         pytest.importorskip("stable_baselines3", reason="a trained model needs the 'train' extra")
-    local = re.findall(r"sb3:(runs/[^\s@\"']+)", text)  # local training runs, not shipped models
+    raw = yaml.safe_load(text)
+    named = [*raw.get("controllers", []), raw.get("reference", "")]
+    local = [  # the sb3 entrants that are local training runs (runs/…), not shipped models
+        Path(c.removeprefix("sb3:").split("@")[0])
+        for c in named
+        if isinstance(c, str) and c.startswith("sb3:") and "runs" in Path(c[4:]).parts[:1]
+    ]
     if any(not (ROOT / run).is_dir() for run in local):
         pytest.skip(f"{name} evaluates local training runs (runs/, made by its make target)")
     from train.evaluate import load_config

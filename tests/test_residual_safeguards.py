@@ -247,9 +247,12 @@ def test_prior_on_a_time_indexed_base_is_stiffness_toward_its_clock(base: str) -
     u, clock = env.unwrapped, env.controller.clock
     seen_unsaturated = False
     for _ in range(200):
-        q, _ = u.measured_joint_state()
+        q, qd = u.measured_joint_state()
         expected = np.clip(g * (u.path.evaluate(clock.s)[0] - q), -1.0, 1.0)
         np.testing.assert_allclose(env.prior_action, expected, rtol=0, atol=1e-12)
+        # ... and the error the base is about to act on (its compiled reference errors)
+        tracked = np.clip(g * clock.errors(q, qd, u.dt).e, -1.0, 1.0)
+        np.testing.assert_allclose(env.prior_action, tracked, rtol=0, atol=1e-9)
         seen_unsaturated |= bool(np.any(np.abs(expected) < 0.99) and np.any(expected != 0))
         a = rng.uniform(-1.0, 1.0, 2)
         _, _, term, trunc, info = env.step(a)
@@ -276,6 +279,35 @@ def test_prior_is_recorded_in_the_spec_and_works_without_controller_state() -> N
     assert np.any(i0["residual_prior"] != 0.0)
     for e in (env, again, bare):
         e.close()
+
+
+def test_prior_on_a_controller_without_a_reference_error_block_is_refused() -> None:
+    """A controller object whose feature block has no reference error (here: none at all)
+    cannot carry a prior: refused when the wrapper is built, with the features it needs."""
+    import gymnasium as gym
+
+    from agents.registry import make_controller
+    from agents.residual import ResidualWrapper
+
+    env = gym.make(ID, **KW)
+    inner = make_controller("pd_gravity", env)
+
+    class Bare:  # the controller protocol without residual_features
+        n = inner.n
+
+        def reset(self, q, qd, s):
+            inner.reset(q, qd, s)
+
+        def step(self, q, qd, dt):
+            return inner.step(q, qd, dt)
+
+        def diagnostics(self):
+            return inner.diagnostics()
+
+    with pytest.raises(InvalidConfigError, match="reference-error features"):
+        ResidualWrapper(env, Bare(), prior_gain_per_rad=100.0)
+    ResidualWrapper(env, Bare())  # without a prior it is a valid base
+    env.close()
 
 
 @pytest.mark.parametrize(

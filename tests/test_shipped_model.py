@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from train.action_probe import action_usage
 from train.episode import EpisodeSettings, Task, run_episode
 from train.evaluate import load_config
 from train.sb3_runs import sb3_files
@@ -63,9 +64,14 @@ def test_shipped_model_runs_deterministically_and_acts(model: str, monkeypatch) 
     """Two runs of one episode give identical metrics, and the policy acts: a residual's
     correction changes its base's torque, a pure policy keeps the arm near the path (a
     broken observation layout or a failed load would not give a finite, repeatable,
-    non-trivial run)."""
+    non-trivial run). A residual with a control prior acts even with a dead network, so for
+    residuals the network's own deterministic action must be non-zero too."""
     monkeypatch.chdir(ROOT)
     cfg = load_config(CONFIG_OF[model], ["episode_s=1.0"])
+    run_dir = ROOT / sb3_files(model)[0]
+    base = yaml.safe_load((run_dir / "config.yml").read_text())["config"]
+    if base["residual"] != "none":  # the learned part, one undisturbed episode (action_probe)
+        assert action_usage(run_dir, seed=0).mean_abs > 1e-3
     settings: EpisodeSettings = cfg.settings()
     task = Task(model, "impulse", 1.0, 0, 0)
     row_a, trace = run_episode(task, settings, keep_trace=True)
@@ -76,13 +82,12 @@ def test_shipped_model_runs_deterministically_and_acts(model: str, monkeypatch) 
             assert row_b[key] == value or (value != value and row_b[key] != row_b[key]), key
     assert np.isfinite(row_a["path_dist_rms"]) and not row_a["failed"]
     assert trace is not None
-    base = yaml.safe_load((ROOT / sb3_files(model)[0] / "config.yml").read_text())["config"]
-    gated = (ROOT / sb3_files(model)[0] / "deploy.yml").exists()
+    gated = (run_dir / "deploy.yml").exists()
     if base["residual"] != "none" and not gated:
         alone, _ = run_episode(Task(base["residual"], "impulse", 1.0, 0, 0), settings)
         assert row_a["tau_rms_frac"] != alone["tau_rms_frac"]  # the residual acted
     elif gated:  # on the path it is its base, bit for bit; pushed off it, it acts
-        gate = yaml.safe_load((ROOT / sb3_files(model)[0] / "deploy.yml").read_text())
+        gate = yaml.safe_load((run_dir / "deploy.yml").read_text())
         band = gate["gate_deadband_rad"]
         for disturbance, same in (("none", True), ("noise", False)):
             level = 0.0 if disturbance == "none" else 1.0  # noise: off the band within 1 s

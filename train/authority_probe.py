@@ -4,9 +4,8 @@ answers before any training does.
 The residual env's controller block observes e = q_r(s) − q, the error to the controller's
 own reference point (``agents.residual.PRIOR_ERROR_FEATURES``: the passivity block's
 ``path_error_j_rad``, s its path parameter; a time-indexed base's ``e_j_rad``, s its clock).
-The probe is the
-wrapper's control prior (``prior_gain_per_rad``) with the learned action held at 0: bang-bang
-stiffness toward that point::
+The probe is the wrapper's control prior (``prior_gain_per_rad``) with the learned action
+held at 0: bang-bang stiffness toward that point::
 
     a = clip(g · e, −1, 1)        (g = 1000 1/rad: saturated beyond 1 mrad)
 
