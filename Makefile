@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants rl-iiwa-tuned-bc rl-iiwa-tuned-prior rl-iiwa-tuned-prior-seeds rl-iiwa-tuned-prior-ct rl-iiwa-prior-alone prior-vs-learned authority-probe rl-pure-sbx rl-pure-sbx-iiwa rl-pure-sbx-iiwa-ent heldout clean check-python
+.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants rl-iiwa-tuned-bc rl-iiwa-tuned-prior rl-iiwa-tuned-prior-seeds rl-iiwa-tuned-prior-ct rl-iiwa-prior-alone prior-vs-learned rl-iiwa-prior-bc-screen authority-probe rl-pure-sbx rl-pure-sbx-iiwa rl-pure-sbx-iiwa-ent heldout clean check-python
 
 setup: $(STAMP)
 
@@ -239,6 +239,11 @@ rl-iiwa-prior-alone: setup
 prior-vs-learned: setup
 	for b in passivity computed_torque; do $(PY) -m train.evaluate \
 	  --config train/configs/prior_vs_learned_$${b}_iiwa.yml --no-progress || exit 1; done
+
+# Two one-seed screens over computed torque with a weaker / no BC pull toward the prior
+# (about 10 min on 2 cores), gated at evaluation.
+rl-iiwa-prior-bc-screen: setup
+	$(call gated_study,train/configs/rl_study_iiwa_prior_bc_screen.yml,runs/rl_study_iiwa_prior_bc_screen,runs/rl_deploy_iiwa_prior_bc_screen,docs/results/rl_deploy_iiwa_prior_bc_screen)
 
 # Pure SAC on the iiwa with sbx: the two-link's pure recipe, 2 seeds to 400 000 steps (about
 # 35 min on 2 cores), evaluated every 100 000 steps.
