@@ -30,8 +30,9 @@ $(STAMP): pyproject.toml constraints.txt | check-python
 	touch $(STAMP)
 
 # The main job: three paired sweeps (iiwa, model-based controllers; two-link with the shipped
-# SAC policies; iiwa with the shipped residual SAC). No --resume: results of older code or another model are never reused
-# silently; an existing results/ folder is refused with a message saying what to do.
+# SAC policies; iiwa with the shipped residual SAC). No --resume: results of older code or
+# another model are never reused silently; an existing results/ folder is refused with a
+# message saying what to do.
 run: setup
 	$(PY) -m train.evaluate --config train/configs/main.yml --out results/main --no-progress
 	$(PY) -m train.evaluate --config train/configs/main_rl.yml --out results/main_rl --no-progress

@@ -33,11 +33,12 @@ def _loader(name: str):
         pytest.importorskip("stable_baselines3", reason="a trained model needs the 'train' extra")
     raw = yaml.safe_load(text)
     named = [*raw.get("controllers", []), raw.get("reference", "")]
-    local = [  # the sb3 entrants that are local training runs (runs/…), not shipped models
+    entrants = [  # the sb3 entrants' run folders ("sb3:<folder>[@<steps>]")
         Path(c.removeprefix("sb3:").split("@")[0])
         for c in named
-        if isinstance(c, str) and c.startswith("sb3:") and "runs" in Path(c[4:]).parts[:1]
+        if isinstance(c, str) and c.startswith("sb3:")
     ]
+    local = [run for run in entrants if run.parts[0] == "runs"]  # not shipped models
     if any(not (ROOT / run).is_dir() for run in local):
         pytest.skip(f"{name} evaluates local training runs (runs/, made by its make target)")
     from train.evaluate import load_config
