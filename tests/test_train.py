@@ -463,7 +463,8 @@ def test_to_argv_round_trips_every_field(tmp_path: Path) -> None:
         max_path_distance=0.3, action_penalty=0.05, gate_rad=0.002, gate_deadband_rad=0.001,
         base_gains="tuned", prior_gain_per_rad=100.0,
         critic_warmup_steps=10, actor_lr_scale=0.1, actor_bc_weight=0.5, torch_threads=2,
-        verbose=1,
+        verbose=1, imitate="pd_gravity", imitate_gains="tuned", imitate_rounds=2,
+        imitate_steps=10, imitate_round_steps=5, imitate_noise=0.01, demo_bc_weight=1.5,
     )  # fmt: skip
     assert parse_args(to_argv(cfg)) == cfg
     assert parse_args(to_argv(TrainConfig(out="x"))) == TrainConfig(out="x")

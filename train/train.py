@@ -83,6 +83,13 @@ from train.hyperparameters import (
     parse_set,
     resolve_hyperparams,
 )
+from train.imitation import (
+    DaggerSpec,
+    add_demo_bc,
+    dagger,
+    load_demonstrations,
+    save_demonstrations,
+)
 from train.sb3_runs import ALGOS, BACKENDS, algo_class
 
 #: ``--residual`` choices: "none" (pure RL) or a base controller name.
@@ -201,6 +208,24 @@ class TrainConfig:
     error (``agents.residual.PRIOR_ERROR_FEATURES``); with
     ``zero_init_residual`` the policy starts as the prior and ``actor_bc_weight`` pulls
     toward it. 0: none."""
+    imitate: str | None = None
+    """Pure SAC only: start the actor as a copy of this model-based controller (a name of
+    ``agents.registry``) learned by DAgger before RL (``train.imitation``); None: no
+    imitation. The run folder gets ``demonstrations.npz``, ``imitation.json`` and a
+    checkpoint at step 0 (the imitation alone)."""
+    imitate_gains: str = "default"
+    """The expert's gains: "default" or "tuned"."""
+    imitate_rounds: int = 4
+    """DAgger rounds after round 0 (0: behaviour cloning of the expert's own runs only)."""
+    imitate_steps: int = 100_000
+    """Env steps of round 0 (the expert drives)."""
+    imitate_round_steps: int = 50_000
+    """Env steps of each further round (the network drives, the expert labels)."""
+    imitate_noise: float = 0.002
+    """Std of the Gaussian added to every executed action while imitating (a = τ/τ_max)."""
+    demo_bc_weight: float = 0.0
+    """With ``imitate``: λ of a pull toward the expert's labels during RL,
+    λ·E_(s,a_E)[|tanh(μ(s)) − a_E|²/n] added to the actor's loss (``add_demo_bc``); 0: none."""
     actor_bc_weight: float = 0.0
     """SAC/TD3 only: λ of a behaviour-cloning term toward the base, λ·E_s[|μ(s)|²/n] added to
     the actor's loss (μ the deterministic action in [−1, 1]ⁿ, s drawn from the replay
@@ -259,6 +284,7 @@ def validate(cfg: TrainConfig) -> Resolved:
                 ("critic_warmup_steps", cfg.critic_warmup_steps != 0),
                 ("actor_lr_scale", cfg.actor_lr_scale != 1.0),
                 ("actor_bc_weight", cfg.actor_bc_weight != 0.0),
+                ("imitate", cfg.imitate is not None),
             )
             if on
         ]
@@ -292,6 +318,7 @@ def validate(cfg: TrainConfig) -> Resolved:
         raise TrainConfigError(f"actor_bc_weight must be >= 0, got {cfg.actor_bc_weight}")
     if cfg.actor_bc_weight and cfg.algo == "ppo":
         raise TrainConfigError("actor_bc_weight needs an actor optimizer (sac, td3)")
+    _validate_imitation(cfg)
     if cfg.init_log_std is not None and (cfg.algo != "sac" or not math.isfinite(cfg.init_log_std)):
         raise TrainConfigError("init_log_std is a finite number, for sac only")
     env_extra: dict[str, Any] = {"reward": cfg.reward}
@@ -361,6 +388,70 @@ def validate(cfg: TrainConfig) -> Resolved:
     )
 
 
+def _validate_imitation(cfg: TrainConfig) -> None:
+    if not (math.isfinite(cfg.demo_bc_weight) and cfg.demo_bc_weight >= 0):
+        raise TrainConfigError(f"demo_bc_weight must be >= 0, got {cfg.demo_bc_weight}")
+    if cfg.imitate is None:
+        if cfg.demo_bc_weight:
+            raise TrainConfigError("demo_bc_weight needs imitate (the expert's demonstrations)")
+        return
+    if cfg.imitate not in CONTROLLER_NAMES:
+        raise TrainConfigError(
+            f"unknown expert {cfg.imitate!r} for imitate; known: {list(CONTROLLER_NAMES)}"
+        )
+    if cfg.residual != "none" or cfg.algo != "sac":
+        raise TrainConfigError("imitate is for pure SAC (residual none, algo sac)")
+    if cfg.imitate_gains not in GAIN_CHOICES:
+        raise TrainConfigError(
+            f"imitate_gains must be one of {GAIN_CHOICES}, got {cfg.imitate_gains!r}"
+        )
+    if cfg.imitate_rounds < 0 or cfg.imitate_steps < 1 or cfg.imitate_round_steps < 1:
+        raise TrainConfigError("imitate_rounds must be >= 0, imitate_(round_)steps >= 1")
+    if not (math.isfinite(cfg.imitate_noise) and cfg.imitate_noise >= 0):
+        raise TrainConfigError(f"imitate_noise must be >= 0, got {cfg.imitate_noise}")
+    if cfg.imitate_gains == "tuned":
+        try:
+            tuned_rates(profile_for_env_id(cfg.env_id).name, cfg.imitate)
+        except InvalidConfigError as exc:
+            raise TrainConfigError(str(exc)) from None
+
+
+def dagger_spec(cfg: TrainConfig) -> DaggerSpec:
+    """The imitation a config asks for (``cfg.imitate`` set)."""
+    assert cfg.imitate is not None
+    return DaggerSpec(
+        controller=cfg.imitate,
+        gains=cfg.imitate_gains,
+        rounds=cfg.imitate_rounds,
+        first_steps=cfg.imitate_steps,
+        round_steps=cfg.imitate_round_steps,
+        noise=cfg.imitate_noise,
+    )
+
+
+def imitate(res: Resolved, model: BaseAlgorithm, train_env: VecEnv, run_dir: Path) -> None:
+    """DAgger of ``res.cfg.imitate`` into ``model``'s actor on an env built like the
+    training env (``train.imitation.dagger``, seeded by the run's seed); saves the
+    demonstrations and a checkpoint at step 0 — the imitation alone, the first point of
+    the run's learning curve (model and VecNormalize statistics; no replay buffer)."""
+    cfg = res.cfg
+    spec = dagger_spec(cfg)
+    env = _env_factory(res, cfg.disturbance)()
+    try:
+        vec_normalize = train_env if isinstance(train_env, VecNormalize) else None
+        demos = dagger(model, env, spec, cfg.seed, vec_normalize)  # type: ignore[arg-type]
+    finally:
+        env.close()
+    save_demonstrations(demos, run_dir, spec)
+    ckpt = run_dir / "checkpoints"
+    ckpt.mkdir(parents=True, exist_ok=True)
+    model.save(ckpt / f"{CHECKPOINT_PREFIX}_{model.num_timesteps}_steps.zip")
+    if isinstance(train_env, VecNormalize):
+        train_env.save(
+            str(ckpt / f"{CHECKPOINT_PREFIX}_vecnormalize_{model.num_timesteps}_steps.pkl")
+        )
+
+
 def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
     path = run_dir / "config.yml"
     if not path.exists():
@@ -369,7 +460,7 @@ def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
     for key in ("algo", "backend", "env_id", "residual", "scale_fraction", "scale_accel_rad_s2",
                 "base_gains", "start", "episode_s", "reward_weights", "reward", "kernel_weights",
                 "max_path_distance", "action_penalty", "gate_rad",
-                "gate_deadband_rad", "prior_gain_per_rad"):  # fmt: skip
+                "gate_deadband_rad", "prior_gain_per_rad", "imitate"):  # fmt: skip
         if key in saved and saved[key] != getattr(cfg, key):
             raise TrainConfigError(
                 f"--resume: {key}={getattr(cfg, key)!r} differs from the run's {saved[key]!r}"
@@ -641,10 +732,21 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
                 zero_init_actor(model)
             if cfg.init_log_std is not None:
                 init_actor_log_std(model, cfg.init_log_std)
+            if cfg.imitate is not None:
+                imitate(res, model, train_env, run_dir)
         if cfg.actor_lr_scale != 1.0:  # fresh or resumed: the hooks are not saved
             scale_actor_lr(model, cfg.actor_lr_scale)
         if cfg.actor_bc_weight:  # likewise
             add_actor_bc(model, cfg.actor_bc_weight)
+        if cfg.demo_bc_weight:  # likewise, from the run's saved demonstrations
+            demo_obs, demo_act = load_demonstrations(run_dir)
+            add_demo_bc(
+                model,
+                demo_obs,
+                demo_act,
+                cfg.demo_bc_weight,
+                cfg.seed + model.num_timesteps,  # type: ignore[arg-type]
+            )
         # An explicit logger in the run folder: without one SB3 creates /tmp/SB3-<date>.
         formats = (
             ["csv"]
@@ -778,6 +880,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--actor-bc-weight", type=float, default=d.actor_bc_weight,
         help="SAC/TD3: weight of a term pulling the actor's action toward 0 (the base or prior)",
+    )  # fmt: skip
+    p.add_argument(
+        "--imitate", choices=CONTROLLER_NAMES, default=None,
+        help="pure SAC: start the actor by DAgger of this controller (train.imitation)",
+    )  # fmt: skip
+    p.add_argument("--imitate-gains", choices=GAIN_CHOICES, default=d.imitate_gains)
+    p.add_argument("--imitate-rounds", type=int, default=d.imitate_rounds)
+    p.add_argument("--imitate-steps", type=int, default=d.imitate_steps, help="round 0")
+    p.add_argument("--imitate-round-steps", type=int, default=d.imitate_round_steps)
+    p.add_argument("--imitate-noise", type=float, default=d.imitate_noise, help="std, a units")
+    p.add_argument(
+        "--demo-bc-weight", type=float, default=d.demo_bc_weight,
+        help="with --imitate: weight of a pull toward the expert's labels during RL",
     )  # fmt: skip
     p.add_argument("--torch-threads", type=int, default=d.torch_threads)
     p.add_argument("--device", default=d.device)
