@@ -197,7 +197,31 @@ def test_residuals_over_tuned_bases_are_compared_with_the_tuned_controllers(
     cfg = yaml.safe_load(cfg_file.read_text())
     del cfg["config"]["base_gains"]  # a run written before the key: default gains
     cfg_file.write_text(yaml.safe_dump(cfg))
-    with pytest.raises(InvalidConfigError, match="base_gains differ"):
+    with pytest.raises(InvalidConfigError, match="gains differ"):
+        discover(root)
+
+
+def test_a_pure_run_that_imitated_a_controller_is_compared_with_that_expert(
+    study: Path, tmp_path: Path
+) -> None:
+    """``imitate``: its reference is the expert (not PD + gravity) at the expert's gains;
+    an expert's gains that differ from the residuals' bases' are refused."""
+    from train.rl_study import reference_of
+
+    root = tmp_path / "imitating"
+    shutil.copytree(study / "pure_s0", root / "pure_s0")
+    cfg_file = root / "pure_s0" / "config.yml"
+    cfg = yaml.safe_load(cfg_file.read_text())
+    cfg["config"].update(imitate="computed_torque", imitate_gains="tuned")
+    cfg_file.write_text(yaml.safe_dump(cfg))
+    runs = discover(root)
+    assert reference_of(runs[0]) == "computed_torque"
+    sweep = sweep_config(runs, 2, tmp_path / "out", 1)
+    assert sweep.gains == "tuned"
+    assert sweep.controllers[:2] == ["computed_torque", "pd_gravity"]
+    assert reference_of(next(r for r in discover(study) if r.base == "none")) == "pd_gravity"
+    shutil.copytree(study / "residual-passivity_s0", root / "residual-passivity_s0")  # default
+    with pytest.raises(InvalidConfigError, match="gains differ"):
         discover(root)
 
 

@@ -177,21 +177,30 @@ def discover(root: Path) -> list[Run]:
 def study_gains(runs: Sequence[Run]) -> str:
     """The model-based controllers' gains of a study: the ``base_gains`` every residual run
     shares ("default" for runs written before the key existed, and for a study of pure runs
-    only) — the controllers alone are evaluated with them, so each residual is compared
-    with the very base it corrects.
+    only) and the ``imitate_gains`` of every pure run that started as a copy of a controller
+    (``train.imitation``) — the controllers alone are evaluated with them, so each residual
+    is compared with the very base it corrects and each imitating policy with its expert.
 
     Raises:
-        InvalidConfigError: residual runs with different base gains.
+        InvalidConfigError: runs with different gains.
     """
     gains = {str(r.config.get("base_gains", "default")) for r in runs if r.base != "none"}
+    gains |= {
+        str(r.config.get("imitate_gains", "default"))
+        for r in runs
+        if r.base == "none" and r.config.get("imitate")
+    }
     if len(gains) > 1:
-        raise InvalidConfigError(f"the residual runs' base_gains differ: {sorted(gains)}")
+        raise InvalidConfigError(f"the runs' base or expert gains differ: {sorted(gains)}")
     return gains.pop() if gains else "default"
 
 
 def reference_of(run: Run) -> str:
-    """The controller a run is compared with: its base, or PD + gravity for pure RL."""
-    return PURE_REFERENCE if run.base == "none" else run.base
+    """The controller a run is compared with: its base; for pure RL the controller it
+    imitated (``imitate``), else PD + gravity."""
+    if run.base != "none":
+        return run.base
+    return str(run.config.get("imitate") or PURE_REFERENCE)
 
 
 def sweep_config(
@@ -209,7 +218,7 @@ def sweep_config(
     preset, _, level = str(first["disturbance"]).partition(":")
     if preset in ("", "none"):
         raise InvalidConfigError("the study's runs were trained without a disturbance")
-    bases = sorted({r.base for r in runs if r.base != "none"})
+    bases = sorted({reference_of(r) for r in runs if r.base != "none" or r.config.get("imitate")})
     baselines = list(dict.fromkeys([*bases, "computed_torque", PURE_REFERENCE]))
     if presets is None:
         entries = [f"sb3:{r.path}@{s}" for r in runs for s in r.checkpoints]
