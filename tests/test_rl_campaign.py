@@ -7,7 +7,12 @@ import pytest
 
 pytest.importorskip("stable_baselines3", reason="the optional 'train' extra is not installed")
 
+import os
 import shlex
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import yaml
@@ -114,3 +119,51 @@ def test_campaign_trains_skips_and_resumes(tmp_path: Path) -> None:
     # each line is the standalone train.train command of its invocation
     first, second = (parse_args(shlex.split(line)[3:]) for line in lines)
     assert first == runs[3] and second == plan_of_resume
+
+
+def _workers(parent: int) -> list[int]:
+    """The pool's worker processes of ``parent`` (Linux ``/proc``)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            cmdline = (entry / "cmdline").read_bytes()
+        except OSError:
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) == parent and b"spawn_main" in cmdline:
+            found.append(int(entry.name))
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+def test_sigterm_to_the_campaign_stops_its_workers_and_each_run_saves(tmp_path: Path) -> None:
+    """``kill <campaign>`` is an interruption: the workers are stopped (not orphaned to
+    train on), each running run saves the steps it took, the same command resumes them."""
+    long = {**TINY, "seeds": [0], "groups": {"pure": {"residual": "none"}}}
+    long["common"] = {**TINY["common"], "steps": 1_000_000, "checkpoint_freq": 100}
+    study, out = write(tmp_path, long), tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "train.rl_campaign", "--config", str(study), "--out", str(out),
+         "--workers", "1"],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    run_dir = out / "pure_s0"
+    deadline = time.monotonic() + 120
+    while latest_checkpoint(run_dir) is None:  # training is under way
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stdout.read()  # type: ignore[union-attr]
+        time.sleep(0.2)
+    workers = _workers(proc.pid)
+    assert workers
+    proc.send_signal(signal.SIGTERM)
+    output, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 130, output
+    assert "interrupted" in output
+    for pid in workers:  # gone with the campaign, not training on
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)
+    steps = latest_checkpoint(run_dir)[0]  # type: ignore[index]
+    assert (run_dir / "model.zip").exists() and 0 < steps < 1_000_000
+    again = plan(load_campaign(study, out)[0])
+    assert again is not None and again.resume and again.steps == 1_000_000 - steps
