@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants rl-iiwa-tuned-bc rl-iiwa-tuned-prior rl-iiwa-tuned-prior-seeds rl-iiwa-tuned-prior-ct rl-iiwa-prior-alone prior-vs-learned rl-iiwa-prior-bc-screen authority-probe rl-pure-sbx rl-pure-sbx-iiwa rl-pure-sbx-iiwa-ent rl-pure-dagger-iiwa heldout clean check-python
+.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants rl-iiwa-tuned-bc rl-iiwa-tuned-prior rl-iiwa-tuned-prior-seeds rl-iiwa-tuned-prior-ct rl-iiwa-prior-alone prior-vs-learned rl-iiwa-prior-bc-screen authority-probe rl-pure-sbx rl-pure-sbx-iiwa rl-pure-sbx-iiwa-ent rl-pure-dagger-iiwa rl-three-arms-iiwa heldout clean check-python
 
 setup: $(STAMP)
 
@@ -263,6 +263,11 @@ rl-pure-sbx-iiwa-ent: setup
 rl-pure-dagger-iiwa: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_pure_dagger_iiwa.yml --out runs/rl_pure_dagger_iiwa --workers 2
 	$(PY) -m train.rl_study --runs runs/rl_pure_dagger_iiwa --out docs/results/rl_pure_dagger_iiwa --episodes 10 --no-progress
+
+# The iiwa's three arms (pure, residual on passivity, residual on computed torque; 5 seeds each)
+# on the same paired test episodes (needs the three targets' local runs; ~10 min on 2 cores).
+rl-three-arms-iiwa: setup
+	$(PY) -m train.evaluate --config train/configs/three_arms_iiwa.yml --no-progress
 
 # Pure SAC on the two-link with the sbx backend (make setup installs it, after torch):
 # 5 seeds to 300 000 steps (about 1 h of training on 2 cores), evaluated every 60 000 steps
