@@ -213,15 +213,15 @@ class TrainConfig:
     ``agents.registry``) learned by DAgger before RL (``train.imitation``); None: no
     imitation. The run folder gets ``demonstrations.npz``, ``imitation.json`` and a
     checkpoint at step 0 (the imitation alone)."""
-    imitate_gains: str = "default"
+    imitate_gains: str = DaggerSpec.gains
     """The expert's gains: "default" or "tuned"."""
-    imitate_rounds: int = 4
+    imitate_rounds: int = DaggerSpec.rounds
     """DAgger rounds after round 0 (0: behaviour cloning of the expert's own runs only)."""
-    imitate_steps: int = 100_000
+    imitate_steps: int = DaggerSpec.first_steps
     """Env steps of round 0 (the expert drives)."""
-    imitate_round_steps: int = 50_000
+    imitate_round_steps: int = DaggerSpec.round_steps
     """Env steps of each further round (the network drives, the expert labels)."""
-    imitate_noise: float = 0.002
+    imitate_noise: float = DaggerSpec.noise
     """Std of the Gaussian added to every executed action while imitating (a = τ/τ_max)."""
     demo_bc_weight: float = 0.0
     """With ``imitate``: λ of a pull toward the expert's labels during RL,
