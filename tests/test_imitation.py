@@ -240,3 +240,22 @@ def test_bad_imitation_options_raise_before_anything_runs(tmp_path: Path, fields
     with pytest.raises(TrainConfigError):
         validate(TrainConfig(out=str(tmp_path / "x"), **fields))
     assert not (tmp_path / "x").exists()
+
+
+def test_an_interruption_during_the_imitation_lets_the_same_command_start_over(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import train.train as train_module
+
+    out = tmp_path / "r"
+
+    def interrupted(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train_module, "dagger", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run(parse_args(_fast(out)))
+    assert not (out / "config.yml").exists()  # a fresh start is not refused
+    monkeypatch.undo()
+    assert run(parse_args(_fast(out))).num_timesteps == 200
+    assert (out / "checkpoints" / "rl_model_0_steps.zip").exists()

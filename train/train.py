@@ -733,7 +733,14 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
             if cfg.init_log_std is not None:
                 init_actor_log_std(model, cfg.init_log_std)
             if cfg.imitate is not None:
-                imitate(res, model, train_env, run_dir)
+                try:
+                    imitate(res, model, train_env, run_dir)
+                except KeyboardInterrupt:
+                    # Nothing trained yet to keep: free the folder, so the same command
+                    # starts over (a config.yml alone would make it refuse, with no
+                    # checkpoint to --resume from).
+                    (run_dir / "config.yml").unlink(missing_ok=True)
+                    raise
         if cfg.actor_lr_scale != 1.0:  # fresh or resumed: the hooks are not saved
             scale_actor_lr(model, cfg.actor_lr_scale)
         if cfg.actor_bc_weight:  # likewise
