@@ -16,12 +16,12 @@ import gymnasium as gym
 import numpy as np
 import torch
 from stable_baselines3 import SAC
+from stable_baselines3.common.vec_env import VecNormalize
 
 import ptrack_gym  # noqa: F401  (registers the envs)
 from agents.policy import ControllerPolicy
 from agents.registry import make_controller
 from train.imitation import (
-    DEMO_FILE,
     DEMO_STATS_FILE,
     LABEL_BOUND,
     DaggerSpec,
@@ -185,7 +185,8 @@ def _fast(out: Path, *extra: str) -> list[str]:
         "--max-path-distance", "0.5", "--steps", "200", "--checkpoint-freq", "100",
         "--eval-freq", "0", "--imitate", "pd_gravity", "--imitate-steps", "800",
         "--imitate-round-steps", "400", "--imitate-rounds", "1",
-        "--set", "learning_starts=50", "--set", "batch_size=32", "--set", "buffer_size=1000",
+        "--init-log-std", "-6", "--critic-warmup-steps", "100",
+        "--set", "learning_starts=0", "--set", "batch_size=32", "--set", "buffer_size=1000",
         "--set", "policy_kwargs=dict(net_arch=[32, 32])", *extra,
     ]  # fmt: skip
 
@@ -194,7 +195,7 @@ def test_a_run_with_imitation_saves_the_demonstrations_and_the_imitation_as_step
     tmp_path: Path,
 ) -> None:
     out = tmp_path / "r"
-    result = run(parse_args(_fast(out, "--demo-bc-weight", "2", "--critic-warmup-steps", "100")))
+    result = run(parse_args(_fast(out, "--demo-bc-weight", "2")))
     assert result.num_timesteps == 200
     obs, act = load_demonstrations(out)
     assert obs.shape == (1200, 14) and act.shape == (1200, 2)
@@ -211,10 +212,61 @@ def test_a_run_with_imitation_saves_the_demonstrations_and_the_imitation_as_step
     w0 = torch.cat([p.flatten() for p in zero.actor.parameters()])
     w1 = torch.cat([p.flatten() for p in final.actor.parameters()])
     assert not torch.equal(w0, w1)
-    # --resume re-applies the pull from the saved demonstrations
+    assert not torch.equal(
+        w0, torch.cat([p.flatten() for p in _model(_env(), 32).actor.parameters()])
+    )
+    # the statistics are round 0's (the expert's 800 steps) and stay frozen through RL
+    stats = [VecNormalize.load(str(ckpt / f"rl_model_vecnormalize_{k}_steps.pkl"), _dummy())
+             for k in (0, 100, 200)]  # fmt: skip
+    np.testing.assert_allclose(stats[0].obs_rms.mean, obs[:800].mean(0), rtol=1e-4, atol=1e-6)
+    # (RunningMeanStd starts at var 1 with count 1e-4: it adds ~1e-4/800 to each variance)
+    np.testing.assert_allclose(stats[0].obs_rms.var, obs[:800].var(0), rtol=1e-4, atol=1e-6)
+    for later in stats[1:]:
+        np.testing.assert_array_equal(later.obs_rms.mean, stats[0].obs_rms.mean)
+        np.testing.assert_array_equal(later.obs_rms.var, stats[0].obs_rms.var)
+    # step 0 acts as the expert labelled, through its own statistics; the frozen actor at
+    # the warm-up's end (step 100) acts exactly as step 0
+    x = torch.as_tensor(stats[0].normalize_obs(obs).astype(np.float32))
+    with torch.no_grad():
+        a0 = deterministic_action(zero, x).numpy()
+        fresh = deterministic_action(_model(_env(), 32), x).numpy()
+        a100 = deterministic_action(SAC.load(ckpt / "rl_model_100_steps.zip", device="cpu"), x)
+    assert np.mean((a0 - act) ** 2) < 0.25 * np.mean((fresh - act) ** 2)  # measured 0.12
+    np.testing.assert_array_equal(a100.numpy(), a0)
+
+
+def test_resume_reapplies_the_pull_from_the_saved_demonstrations(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import train.train as train_module
+
+    out = tmp_path / "r"
+    run(parse_args(_fast(out, "--demo-bc-weight", "2")))
+    calls: list[tuple[int, float]] = []
+    real = train_module.add_demo_bc
+
+    def spy(model: SAC, obs: np.ndarray, act: np.ndarray, weight: float, seed: object) -> None:
+        calls.append((len(obs), weight))
+        real(model, obs, act, weight, seed)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(train_module, "add_demo_bc", spy)
     resumed = run(parse_args([*_fast(out, "--demo-bc-weight", "2"), "--resume"]))
     assert resumed.num_timesteps == 400
-    assert (out / DEMO_FILE).exists()
+    assert calls == [(1200, 2.0)]
+    # and the resumed run's statistics are still the imitation's
+    first = VecNormalize.load(
+        str(out / "checkpoints" / "rl_model_vecnormalize_0_steps.pkl"), _dummy()
+    )
+    last = VecNormalize.load(
+        str(out / "checkpoints" / "rl_model_vecnormalize_400_steps.pkl"), _dummy()
+    )
+    np.testing.assert_array_equal(last.obs_rms.mean, first.obs_rms.mean)
+
+
+def _dummy():  # type: ignore[no-untyped-def]
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    return DummyVecEnv([_env])
 
 
 @pytest.mark.parametrize(
@@ -234,11 +286,16 @@ def test_a_run_with_imitation_saves_the_demonstrations_and_the_imitation_as_step
         {"imitate": "pd_gravity", "demo_bc_weight": -1.0},
         {"demo_bc_weight": 1.0},
         {"imitate": "pd_gravity", "imitate_gains": "tuned", "env_id": "ptrack_gym/PandaTrack-v0"},
+        {"imitate": "pd_gravity", "init_log_std": None},
+        {"imitate": "pd_gravity", "overrides": {}},  # TwoLink's YAML: learning_starts 5000
+        {"imitate": "pd_gravity", "overrides": {"learning_starts": 10}},
     ],
 )
 def test_bad_imitation_options_raise_before_anything_runs(tmp_path: Path, fields: dict) -> None:
+    ok = {"init_log_std": -6.0, "overrides": {"learning_starts": 0}}
+    validate(TrainConfig(out=str(tmp_path / "ok"), imitate="pd_gravity", **ok))  # the base is fine
     with pytest.raises(TrainConfigError):
-        validate(TrainConfig(out=str(tmp_path / "x"), **fields))
+        validate(TrainConfig(out=str(tmp_path / "x"), **{**ok, **fields}))
     assert not (tmp_path / "x").exists()
 
 

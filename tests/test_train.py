@@ -184,6 +184,16 @@ def test_sigterm_is_an_interruption_while_a_run_trains_only() -> None:
     with pytest.raises(KeyboardInterrupt), sigterm_as_interrupt():
         signal.raise_signal(signal.SIGTERM)
     assert signal.getsignal(signal.SIGTERM) is previous
+    # one-shot: a second SIGTERM while the first one's save runs is ignored
+    saved = False
+    with pytest.raises(KeyboardInterrupt), sigterm_as_interrupt():
+        try:
+            signal.raise_signal(signal.SIGTERM)
+        except KeyboardInterrupt:
+            signal.raise_signal(signal.SIGTERM)  # Pool.terminate's, mid-save
+            saved = True
+            raise
+    assert saved and signal.getsignal(signal.SIGTERM) is previous
 
 
 @pytest.mark.parametrize(

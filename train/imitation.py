@@ -31,7 +31,7 @@ represent it exactly). Every random draw comes from a ``np.random.Generator`` an
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -275,12 +275,13 @@ def add_demo_bc(
     observations: np.ndarray,
     actions: np.ndarray,
     weight: float,
-    seed: int,
+    seed: int | Sequence[int],
 ) -> None:
     """Before every step of the actor's optimizer, add the gradient of :func:`demo_bc_loss`
-    on a minibatch of the demonstrations (SB3's batch size, drawn from a generator seeded
-    by ``seed``; observations normalized by the model's current VecNormalize statistics,
-    as SB3's ``train`` normalizes replay data) to the actor's gradient SB3 has just
+    on a minibatch of the demonstrations (SB3's batch size, drawn from
+    ``np.random.default_rng(seed)``; observations normalized by the model's current
+    VecNormalize statistics, as SB3's ``train`` normalizes replay data) to the actor's
+    gradient SB3 has just
     computed. Skipped while the actor is frozen (critic warm-up). Hooks are not saved with
     a model: apply again after loading one (``train.train.run`` does, on ``--resume``)."""
     algo: Any = model

@@ -144,6 +144,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 if error:
                     failed.append((out, error))
     except KeyboardInterrupt:
+        for out, error in failed:
+            print(f"--- {out}\n{error}")
         print("interrupted: the running runs saved their steps; the same command resumes them",
               flush=True)  # fmt: skip
         return 130

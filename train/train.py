@@ -353,6 +353,12 @@ def validate(cfg: TrainConfig) -> Resolved:
         raise TrainConfigError("eval_episodes and torch_threads must be >= 1")
     raw = load_hyperparams(cfg.algo, cfg.env_id, cfg.hyperparams, cfg.overrides)
     algo_kwargs, special = resolve_hyperparams(cfg.algo, raw, cfg.backend)
+    if cfg.imitate is not None and int(algo_kwargs.get("learning_starts", 100)) != 0:
+        raise TrainConfigError(
+            "imitate needs learning_starts=0 (--set learning_starts=0): SB3 acts uniformly at "
+            "random until learning_starts, which throws the arm off the path the imitation "
+            "tracks and fills the replay buffer with it"
+        )
     steps = cfg.steps if cfg.steps is not None else special.get("n_timesteps")
     if steps is None or int(steps) < 1:
         raise TrainConfigError(f"steps must be >= 1 (or n_timesteps in the YAML), got {steps}")
@@ -388,6 +394,11 @@ def validate(cfg: TrainConfig) -> Resolved:
     )
 
 
+#: The demonstration pull's random stream, apart from DAgger's (seeded by the run's seed
+#: alone): np.random.default_rng([seed, DEMO_BC_STREAM, steps at its start]).
+DEMO_BC_STREAM = 7919
+
+
 def _validate_imitation(cfg: TrainConfig) -> None:
     if not (math.isfinite(cfg.demo_bc_weight) and cfg.demo_bc_weight >= 0):
         raise TrainConfigError(f"demo_bc_weight must be >= 0, got {cfg.demo_bc_weight}")
@@ -404,6 +415,11 @@ def _validate_imitation(cfg: TrainConfig) -> None:
     if cfg.imitate_gains not in GAIN_CHOICES:
         raise TrainConfigError(
             f"imitate_gains must be one of {GAIN_CHOICES}, got {cfg.imitate_gains!r}"
+        )
+    if cfg.init_log_std is None:
+        raise TrainConfigError(
+            "imitate needs init_log_std: the fit trains the actor's mean only, so its "
+            "exploration std would be whatever the shared layers make of the log-std head"
         )
     if cfg.imitate_rounds < 0 or cfg.imitate_steps < 1 or cfg.imitate_round_steps < 1:
         raise TrainConfigError("imitate_rounds must be >= 0, imitate_(round_)steps >= 1")
@@ -443,6 +459,11 @@ def imitate(res: Resolved, model: BaseAlgorithm, train_env: VecEnv, run_dir: Pat
     finally:
         env.close()
     save_demonstrations(demos, run_dir, spec)
+    if isinstance(train_env, VecNormalize):
+        # The actor was fitted to these statistics (round 0's): frozen from here on, or
+        # the same actor would see other inputs as RL's episodes move them (measured: one
+        # seed's frozen actor went from 0 to 10 of 10 test episodes failed in 10 000 steps).
+        train_env.training = False
     ckpt = run_dir / "checkpoints"
     ckpt.mkdir(parents=True, exist_ok=True)
     model.save(ckpt / f"{CHECKPOINT_PREFIX}_{model.num_timesteps}_steps.zip")
@@ -460,7 +481,9 @@ def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
     for key in ("algo", "backend", "env_id", "residual", "scale_fraction", "scale_accel_rad_s2",
                 "base_gains", "start", "episode_s", "reward_weights", "reward", "kernel_weights",
                 "max_path_distance", "action_penalty", "gate_rad",
-                "gate_deadband_rad", "prior_gain_per_rad", "imitate"):  # fmt: skip
+                "gate_deadband_rad", "prior_gain_per_rad", "imitate", "imitate_gains",
+                "imitate_rounds", "imitate_steps", "imitate_round_steps", "imitate_noise",
+                "demo_bc_weight"):  # fmt: skip
         if key in saved and saved[key] != getattr(cfg, key):
             raise TrainConfigError(
                 f"--resume: {key}={getattr(cfg, key)!r} differs from the run's {saved[key]!r}"
@@ -715,6 +738,8 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
                 algo_class(cfg.algo, cfg.backend), run_dir, train_env, eval_env,
                 res.normalize_kwargs is not None, cfg.device, cfg.tensorboard,
             )  # fmt: skip
+            if cfg.imitate is not None and isinstance(train_env, VecNormalize):
+                train_env.training = False  # the imitation's statistics stay frozen
         else:
             kwargs = dict(res.algo_kwargs)
             noise = action_noise(res.special, int(np.prod(train_env.action_space.shape)))
@@ -735,10 +760,10 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
             if cfg.imitate is not None:
                 try:
                     imitate(res, model, train_env, run_dir)
-                except KeyboardInterrupt:
-                    # Nothing trained yet to keep: free the folder, so the same command
-                    # starts over (a config.yml alone would make it refuse, with no
-                    # checkpoint to --resume from).
+                except BaseException:
+                    # Interrupted or failed: nothing trained yet to keep. Free the folder,
+                    # so the same command starts over (a config.yml alone would make it
+                    # refuse, with no checkpoint to --resume from).
                     (run_dir / "config.yml").unlink(missing_ok=True)
                     raise
         if cfg.actor_lr_scale != 1.0:  # fresh or resumed: the hooks are not saved
@@ -752,7 +777,7 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
                 demo_obs,
                 demo_act,
                 cfg.demo_bc_weight,
-                cfg.seed + model.num_timesteps,  # type: ignore[arg-type]
+                [cfg.seed, DEMO_BC_STREAM, model.num_timesteps],  # type: ignore[arg-type]
             )
         # An explicit logger in the run folder: without one SB3 creates /tmp/SB3-<date>.
         formats = (
@@ -954,6 +979,9 @@ def sigterm_as_interrupt() -> Iterator[None]:
     idle worker terminated after its run then exits quietly."""
 
     def _raise(signum: int, frame: Any) -> None:
+        # One-shot: a second SIGTERM (Pool.terminate's, after a signal to the whole process
+        # group) is ignored, so it cannot cut the save it started short.
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         raise KeyboardInterrupt(f"signal {signum}")
 
     previous = signal.signal(signal.SIGTERM, _raise)
