@@ -328,3 +328,25 @@ def test_a_bad_deploy_file_is_named_before_anything_runs(
     (folder / "deploy.yml").write_text(text)
     with pytest.raises(InvalidConfigError, match=match):
         check_sb3_run(f"sb3:{folder}", "ptrack_gym/TwoLinkTrack-v0")
+
+
+def test_samples_to_reach_says_an_imitating_runs_steps_are_rl_steps_only(
+    study: Path, tmp_path: Path
+) -> None:
+    import json
+
+    from train.rl_study import samples_to_reach
+
+    root = tmp_path / "imitating"
+    shutil.copytree(study / "pure_s0", root / "pure_s0")
+    runs = discover(root)
+    curves = pd.DataFrame(
+        {"group": ["pure"] * 2, "seed": [0, 0], "steps": [100, 200],
+         "disturbance": ["impulse"] * 2, "path_dist_rms": [0.5, 0.001]}
+    )  # fmt: skip
+    baselines = {"impulse": {"pd_gravity": 0.01}}
+    plain = samples_to_reach(curves, baselines, runs, "impulse")
+    assert "| 200 |" in plain and "imitation" not in plain
+    (root / "pure_s0" / "imitation.json").write_text(json.dumps({"env_steps": 1234}))
+    noted = samples_to_reach(curves, baselines, runs, "impulse")
+    assert "pure also took 1234 env steps" in noted

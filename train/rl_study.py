@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -420,7 +421,27 @@ def samples_to_reach(curves: pd.DataFrame, baselines: dict, runs: Sequence[Run],
             f"| {group} | {ref_name} ({target:.2e} rad) | {per_seed} "
             f"| {len(got)}/{len(reached)} | {median} |"
         )
+    imitated = {r.group: imitation_steps(r) for r in runs if imitation_steps(r) is not None}
+    if imitated:
+        lines.append("")
+        lines.append(
+            "RL steps only: "
+            + "; ".join(
+                f"{g} also took {n} env steps of its expert's labels before step 0 "
+                "(`imitation.json`)"
+                for g, n in sorted(imitated.items())
+            )
+            + "."
+        )
     return "\n".join(lines)
+
+
+def imitation_steps(run: Run) -> int | None:
+    """The env steps a run's imitation took before its RL (``imitation.json``), or None."""
+    path = run.path / "imitation.json"
+    if not path.exists():
+        return None
+    return int(json.loads(path.read_text())["env_steps"])
 
 
 def aggregate_frame(df: pd.DataFrame, runs: Sequence[Run]) -> pd.DataFrame:
