@@ -259,13 +259,13 @@ rl-pure-sbx-iiwa-ent: setup
 	$(PY) -m train.rl_study --runs runs/rl_pure_sbx_iiwa_ent --out docs/results/rl_pure_sbx_iiwa_ent --episodes 10 --every 100000 --no-progress
 
 # Pure RL on the iiwa, third try: DAgger of tuned PD + gravity, then SAC fine-tuning (issue 14;
-# 5 seeds x (300 000 imitation + 100 000 RL steps), ~50 min on 2 cores).
+# 5 seeds x (300 000 imitation + 20 000 RL steps), ~30 min on 2 cores).
 rl-pure-dagger-iiwa: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_pure_dagger_iiwa.yml --out runs/rl_pure_dagger_iiwa --workers 2
 	$(PY) -m train.rl_study --runs runs/rl_pure_dagger_iiwa --out docs/results/rl_pure_dagger_iiwa --episodes 10 --no-progress
 
 # The iiwa's three arms (pure, residual on passivity, residual on computed torque; 5 seeds each)
-# on the same paired test episodes (needs the three targets' local runs; ~10 min on 2 cores).
+# on the same paired test episodes (needs the three targets' local runs; ~15 min on 2 cores).
 rl-three-arms-iiwa: setup
 	$(PY) -m train.evaluate --config train/configs/three_arms_iiwa.yml --no-progress
 
