@@ -54,20 +54,31 @@ class PruningCheckpointCallback(CheckpointCallback):
         return result
 
 
-def save_final(model: BaseAlgorithm, train_env: VecEnv, run_dir: Path) -> None:
-    """model.zip / vecnormalize.pkl, and the same state as a checkpoint for --resume
-    (with the replay buffer of an off-policy model)."""
+def save_checkpoint(
+    model: BaseAlgorithm, train_env: VecEnv, run_dir: Path, replay_buffer: bool = True
+) -> Path:
+    """``checkpoints/rl_model_<steps>_steps.zip`` and its VecNormalize statistics; with
+    ``replay_buffer``, an off-policy model's replay buffer too (older ones pruned). Returns
+    the checkpoint folder."""
     steps = model.num_timesteps
     ckpt = run_dir / "checkpoints"
     ckpt.mkdir(parents=True, exist_ok=True)
-    model.save(run_dir / "model.zip")
     model.save(ckpt / f"{CHECKPOINT_PREFIX}_{steps}_steps.zip")
-    if isinstance(model, OffPolicyAlgorithm):
+    if replay_buffer and isinstance(model, OffPolicyAlgorithm):
         model.save_replay_buffer(ckpt / f"{CHECKPOINT_PREFIX}_replay_buffer_{steps}_steps.pkl")
         prune_replay_buffers(ckpt, steps)
     if isinstance(train_env, VecNormalize):
-        train_env.save(str(run_dir / "vecnormalize.pkl"))
         train_env.save(str(ckpt / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"))
+    return ckpt
+
+
+def save_final(model: BaseAlgorithm, train_env: VecEnv, run_dir: Path) -> None:
+    """model.zip / vecnormalize.pkl, and the same state as a checkpoint for --resume
+    (with the replay buffer of an off-policy model)."""
+    model.save(run_dir / "model.zip")
+    save_checkpoint(model, train_env, run_dir)
+    if isinstance(train_env, VecNormalize):
+        train_env.save(str(run_dir / "vecnormalize.pkl"))
 
 
 def load_checkpoint(

@@ -137,6 +137,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # before this process exits. Without it the parent died alone and its spawn workers
     # trained on, orphaned (measured: two campaigns "killed" this way wrote checkpoints
     # 25 minutes later).
+    interrupted = False
     try:
         with sigterm_as_interrupt(), ctx.Pool(max(1, args.workers), maxtasksperchild=1) as pool:
             for out, error in pool.imap_unordered(_train_one, todo):
@@ -144,13 +145,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                 if error:
                     failed.append((out, error))
     except KeyboardInterrupt:
-        for out, error in failed:
-            print(f"--- {out}\n{error}")
+        interrupted = True
+    for out, error in failed:
+        print(f"--- {out}\n{error}")
+    if interrupted:
         print("interrupted: the running runs saved their steps; the same command resumes them",
               flush=True)  # fmt: skip
         return 130
-    for out, error in failed:
-        print(f"--- {out}\n{error}")
     return 1 if failed else 0
 
 

@@ -421,7 +421,8 @@ def samples_to_reach(curves: pd.DataFrame, baselines: dict, runs: Sequence[Run],
             f"| {group} | {ref_name} ({target:.2e} rad) | {per_seed} "
             f"| {len(got)}/{len(reached)} | {median} |"
         )
-    imitated = {r.group: imitation_steps(r) for r in runs if imitation_steps(r) is not None}
+    steps_of = {r.group: imitation_steps(r) for r in runs}  # a group shares its imitation
+    imitated = {g: n for g, n in steps_of.items() if n is not None}
     if imitated:
         lines.append("")
         lines.append(

@@ -66,6 +66,7 @@ from train.checkpoints import (
     PruningCheckpointCallback,
     latest_checkpoint,
     load_checkpoint,
+    save_checkpoint,
     save_final,
 )
 from train.envs import (
@@ -344,6 +345,8 @@ def validate(cfg: TrainConfig) -> Resolved:
             check_prior(cfg.residual, cfg.prior_gain_per_rad)
             if cfg.base_gains == "tuned":
                 tuned_rates(profile.name, cfg.residual)  # raises naming the tuned files there are
+        if cfg.imitate is not None and cfg.imitate_gains == "tuned":
+            tuned_rates(profile.name, cfg.imitate)  # likewise, for the expert
     except InvalidConfigError as exc:
         raise TrainConfigError(str(exc)) from None
     for name in ("eval_freq", "checkpoint_freq"):
@@ -425,11 +428,6 @@ def _validate_imitation(cfg: TrainConfig) -> None:
         raise TrainConfigError("imitate_rounds must be >= 0, imitate_(round_)steps >= 1")
     if not (math.isfinite(cfg.imitate_noise) and cfg.imitate_noise >= 0):
         raise TrainConfigError(f"imitate_noise must be >= 0, got {cfg.imitate_noise}")
-    if cfg.imitate_gains == "tuned":
-        try:
-            tuned_rates(profile_for_env_id(cfg.env_id).name, cfg.imitate)
-        except InvalidConfigError as exc:
-            raise TrainConfigError(str(exc)) from None
 
 
 def dagger_spec(cfg: TrainConfig) -> DaggerSpec:
@@ -464,13 +462,7 @@ def imitate(res: Resolved, model: BaseAlgorithm, train_env: VecEnv, run_dir: Pat
         # the same actor would see other inputs as RL's episodes move them (measured: one
         # seed's frozen actor went from 0 to 10 of 10 test episodes failed in 10 000 steps).
         train_env.training = False
-    ckpt = run_dir / "checkpoints"
-    ckpt.mkdir(parents=True, exist_ok=True)
-    model.save(ckpt / f"{CHECKPOINT_PREFIX}_{model.num_timesteps}_steps.zip")
-    if isinstance(train_env, VecNormalize):
-        train_env.save(
-            str(ckpt / f"{CHECKPOINT_PREFIX}_vecnormalize_{model.num_timesteps}_steps.pkl")
-        )
+    save_checkpoint(model, train_env, run_dir, replay_buffer=False)
 
 
 def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
