@@ -101,11 +101,18 @@ clipping of the sum to τ_max),
 
 :func:`make_residual_env` is the one-call constructor: ``gym.make`` + the controller of
 :func:`agents.registry.make_controller` (default or tuned gains) + the wrapper.
+
+A base may also be a *network*: ``base="network"`` with ``base_model`` the folder of a saved
+pure SAC policy (:data:`NETWORK_BASE`, :class:`~agents.network.NetworkController`) — RL then
+learns a correction to a frozen learned policy (an imitation, ``train.imitation``) and the
+composite stays a pure policy (no model-based controller at run time). It offers no feature
+block of its own (the n entries of the last τ_base / τ_max) and hence no control prior.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
@@ -130,6 +137,11 @@ PRIOR_ERROR_FEATURES = ("path_error_{j}_rad", "e_{j}_rad")
 #: The bases whose feature block has one of :data:`PRIOR_ERROR_FEATURES` for every joint; a
 #: test keeps this equal to the controllers' blocks.
 PRIOR_BASES = ("passivity", "passivity_paper", "computed_torque", "pd_gravity", "slotine_li")
+#: The base name of a *network* base: a saved pure policy (``base_model``, a model folder)
+#: run as a controller (:class:`~agents.network.NetworkController`).
+NETWORK_BASE = "network"
+#: Every base a residual may have: the registry's controllers and a network.
+RESIDUAL_BASES: tuple[str, ...] = (*CONTROLLER_NAMES, NETWORK_BASE)
 
 
 def prior_error_names(names: tuple[str, ...], n: int) -> list[str] | None:
@@ -193,6 +205,31 @@ def check_prior(base: str | None, prior_gain_per_rad: float) -> None:
         raise InvalidConfigError(
             f"a control prior (prior_gain_per_rad) needs a base of {PRIOR_BASES}, got {base!r}"
         )
+
+
+def check_base_model(base: str | None, base_model: str | None) -> None:
+    """Raise :class:`InvalidConfigError` unless ``base_model`` (a model folder) is given
+    exactly when ``base`` is :data:`NETWORK_BASE` (None: a controller object) and then
+    holds a saved model."""
+    if base == NETWORK_BASE:
+        if not isinstance(base_model, str) or not base_model:
+            raise InvalidConfigError("a network base needs base_model, a pure policy's folder")
+        from agents.network import MODEL_FILE
+
+        if not (Path(base_model) / MODEL_FILE).is_file():
+            raise InvalidConfigError(f"base_model {base_model!r}: no {MODEL_FILE} there")
+    elif base_model is not None:
+        raise InvalidConfigError(f"base_model is for a {NETWORK_BASE!r} base, not {base!r}")
+
+
+def build_base(env: Any, base: str, base_gains: str, base_model: str | None) -> Controller:
+    """The base controller ``base`` for ``env``: a registry controller with ``base_gains``,
+    or, for :data:`NETWORK_BASE`, the pure policy saved in ``base_model``."""
+    if base == NETWORK_BASE:
+        from agents.network import load_network_controller
+
+        return load_network_controller(str(base_model), env)
+    return make_controller(base, env, base_gains)
 
 
 def check_base_gains(base_gains: str) -> None:
@@ -264,6 +301,8 @@ class ResidualWrapper(
             controller object, whose gains are its own.
         prior_gain_per_rad: g ≥ 0 (1/rad) of the control prior (module docstring); 0
             (default): none.
+        base_model: with ``controller="network"`` (:data:`NETWORK_BASE`), the folder of the
+            saved pure policy that is the base (:mod:`agents.network`); None otherwise.
 
     Raises:
         InvalidConfigError: (a ``ValueError``) a joint-count mismatch or a bad scale.
@@ -281,10 +320,14 @@ class ResidualWrapper(
         scale_accel_rad_s2: float | None = None,
         base_gains: str = "default",
         prior_gain_per_rad: float = 0.0,
+        base_model: str | None = None,
     ) -> None:
         check_base_gains(base_gains)
         if not isinstance(controller, str) and base_gains != "default":
             raise InvalidConfigError("base_gains is for a base given by name, not an object")
+        check_base_model(controller if isinstance(controller, str) else None, base_model)
+        if controller == NETWORK_BASE and base_gains != "default":
+            raise InvalidConfigError("a network base has no gains: keep base_gains 'default'")
         self._controller_name = controller if isinstance(controller, str) else None
         self._registered = False  # set by residual_env: the spec is the registered one
         if self._controller_name is not None:
@@ -299,14 +342,16 @@ class ResidualWrapper(
                 scale_accel_rad_s2=scale_accel_rad_s2,
                 base_gains=base_gains,
                 prior_gain_per_rad=prior_gain_per_rad,
+                base_model=base_model,
             )
         super().__init__(env)
         u = env.unwrapped
         self.tracking_env = u
         self.n = int(u.n)
         if isinstance(controller, str):
-            controller = make_controller(controller, env, base_gains)
+            controller = build_base(env, controller, base_gains, base_model)
         self.base_gains = base_gains
+        self.base_model = base_model
         if controller.n != self.n:
             raise InvalidConfigError(f"controller has {controller.n} joints, env has {self.n}")
         self.controller = controller
@@ -470,11 +515,13 @@ def make_residual_env(
     scale_accel_rad_s2: float | None = None,
     base_gains: str = "default",
     prior_gain_per_rad: float = 0.0,
+    base_model: str | None = None,
     **env_kwargs: Any,
 ) -> ResidualWrapper:
     """``gym.make(env_id, **env_kwargs)`` wrapped in a :class:`ResidualWrapper` around
     the controller ``base`` (one of ``agents.registry.CONTROLLER_NAMES``) with
-    ``base_gains`` ("default" or "tuned"), with scale = ``scale_fraction`` · τ_max (N·m)
+    ``base_gains`` ("default" or "tuned") — or the pure policy in ``base_model`` for
+    ``base="network"`` — with scale = ``scale_fraction`` · τ_max (N·m)
     — or, with ``scale_accel_rad_s2`` α, the residual M(q) α a (an acceleration, module
     docstring) — and the wrapper's ``action_penalty``, ``gate_rad``,
     ``gate_deadband_rad`` and ``prior_gain_per_rad``.
@@ -488,17 +535,18 @@ def make_residual_env(
     _check_base(base, scale_fraction, scale_accel_rad_s2)
     check_base_gains(base_gains)
     check_prior(base, prior_gain_per_rad)
+    check_base_model(base, base_model)
     env = gym.make(env_id, **env_kwargs)
     return _wrap(
         env, base, scale_fraction, include_controller_state,
         action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2, base_gains,
-        prior_gain_per_rad,
+        prior_gain_per_rad, base_model,
     )  # fmt: skip
 
 
 def _check_base(base: str, scale_fraction: float, scale_accel_rad_s2: float | None) -> None:
-    if base not in CONTROLLER_NAMES:
-        raise InvalidConfigError(f"unknown base controller {base!r}; known: {CONTROLLER_NAMES}")
+    if base not in RESIDUAL_BASES:
+        raise InvalidConfigError(f"unknown base controller {base!r}; known: {RESIDUAL_BASES}")
     if not (math.isfinite(scale_fraction) and scale_fraction >= 0.0):
         raise InvalidConfigError(f"scale_fraction must be finite and >= 0, got {scale_fraction}")
     _check_scale_accel(scale_accel_rad_s2)
@@ -526,8 +574,10 @@ def _wrap(
     scale_accel_rad_s2: float | None,
     base_gains: str = "default",
     prior_gain_per_rad: float = 0.0,
+    base_model: str | None = None,
 ) -> ResidualWrapper:
-    """``env`` in a :class:`ResidualWrapper` around ``base`` (its ``base_gains``) with
+    """``env`` in a :class:`ResidualWrapper` around ``base`` (its ``base_gains``, or the
+    policy in ``base_model``) with
     scale = ``scale_fraction`` · τ_max (N·m), or the acceleration authority
     ``scale_accel_rad_s2`` when given; ``env`` is closed if that fails."""
     try:
@@ -538,7 +588,7 @@ def _wrap(
         return ResidualWrapper(
             env, base, scale_nm, include_controller_state,
             action_penalty, gate_rad, gate_deadband_rad, scale_accel_rad_s2, base_gains,
-            prior_gain_per_rad,
+            prior_gain_per_rad, base_model,
         )  # fmt: skip
     except BaseException:
         env.close()

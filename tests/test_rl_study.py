@@ -225,6 +225,33 @@ def test_a_pure_run_that_imitated_a_controller_is_compared_with_that_expert(
         discover(root)
 
 
+def test_a_residual_over_a_network_is_compared_with_that_network(
+    study: Path, tmp_path: Path
+) -> None:
+    """A network base's reference is its model (``sb3:<base_model>``, a reference alone, not
+    a checkpoint of the study) at the gains of the controller it imitated."""
+    from train.rl_study import is_checkpoint_entry, reference_of
+
+    base = tmp_path / "imitation"
+    shutil.copytree(study / "pure_s0", base)
+    base_cfg = yaml.safe_load((base / "config.yml").read_text())
+    base_cfg["config"].update(imitate="pd_gravity", imitate_gains="tuned")
+    (base / "config.yml").write_text(yaml.safe_dump(base_cfg))
+    root = tmp_path / "over-network"
+    shutil.copytree(study / "residual-passivity_s0", root / "residual-network_s0")
+    cfg_file = root / "residual-network_s0" / "config.yml"
+    cfg = yaml.safe_load(cfg_file.read_text())
+    cfg["config"].update(residual="network", base_model=str(base))
+    cfg_file.write_text(yaml.safe_dump(cfg))
+    runs = discover(root)
+    assert reference_of(runs[0]) == f"sb3:{base}"
+    sweep = sweep_config(runs, 2, tmp_path / "out", 1)
+    assert sweep.reference == f"sb3:{base}" and sweep.gains == "tuned"
+    assert not is_checkpoint_entry(sweep.reference)
+    mine = [c for c in sweep.controllers if c.startswith(f"sb3:{runs[0].path}")]
+    assert mine and all(is_checkpoint_entry(c) for c in mine)
+
+
 def test_thinning_keeps_multiples_and_the_last_checkpoint(study: Path) -> None:
     from train.rl_study import thin
 

@@ -363,6 +363,7 @@ def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
         "scale_accel_rad_s2": None,
         "base_gains": "default",
         "prior_gain_per_rad": 0.0,
+        "base_model": None,
     }
     from train.train import _env_factory
 
@@ -418,6 +419,7 @@ def test_acceleration_authority_reaches_the_training_env(tmp_path: Path) -> None
     assert res.residual_kwargs == {
         "action_penalty": 0.0, "gate_rad": None, "gate_deadband_rad": 0.0,
         "scale_accel_rad_s2": 10.0, "base_gains": "default", "prior_gain_per_rad": 0.0,
+        "base_model": None,
     }  # fmt: skip
     env = _env_factory(res, "none")()
     try:

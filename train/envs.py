@@ -32,8 +32,9 @@ def parse_disturbance(text: str | None) -> Any:
         raise InvalidConfigError(f"disturbance level must be a number: {text!r}") from None
 
 
-#: The residual wrapper's arguments a run config may set (its safeguards, its base's gains
-#: and its control prior), with the wrapper's defaults (``agents.residual.make_residual_env``).
+#: The residual wrapper's arguments a run config may set (its safeguards, its base's gains,
+#: its control prior and, for a network base, the base policy's folder), with the wrapper's
+#: defaults (``agents.residual.make_residual_env``).
 WRAPPER_DEFAULTS: dict[str, Any] = {
     "action_penalty": 0.0,
     "gate_rad": None,
@@ -41,6 +42,7 @@ WRAPPER_DEFAULTS: dict[str, Any] = {
     "scale_accel_rad_s2": None,
     "base_gains": "default",
     "prior_gain_per_rad": 0.0,
+    "base_model": None,
 }
 
 

@@ -45,6 +45,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from agents.residual import NETWORK_BASE
 from ptrack_gym.errors import InvalidConfigError
 from train.evaluate import EvalConfig
 from train.report import aggregate
@@ -66,7 +67,7 @@ GROUP_KEYS = (
     "reward_weights", "reward", "kernel_weights", "max_path_distance", "hyperparams",
     "overrides", "scale_fraction", "scale_accel_rad_s2", "zero_init_residual", "action_penalty",
     "gate_rad", "gate_deadband_rad", "init_log_std", "critic_warmup_steps", "actor_lr_scale",
-    "actor_bc_weight", "prior_gain_per_rad",
+    "actor_bc_weight", "prior_gain_per_rad", "base_model", "decision_every",
 )  # fmt: skip
 
 #: ``train.train.TrainConfig``'s defaults of :data:`GROUP_KEYS` (a test keeps them equal;
@@ -78,6 +79,7 @@ GROUP_KEY_DEFAULTS: dict[str, object] = {
     "scale_accel_rad_s2": None, "zero_init_residual": False, "action_penalty": 0.0,
     "gate_rad": None, "gate_deadband_rad": 0.0, "init_log_std": None, "critic_warmup_steps": 0,
     "actor_lr_scale": 1.0, "actor_bc_weight": 0.0, "prior_gain_per_rad": 0.0,
+    "base_model": None, "decision_every": 1,
 }  # fmt: skip
 
 #: The presets the final checkpoints are evaluated under (level 1), by default.
@@ -97,6 +99,12 @@ class Run:
     control_hz: float
     checkpoints: tuple[int, ...]  # step counts with a checkpoint, ascending
     config: dict[str, object]
+
+
+def is_checkpoint_entry(controller: str) -> bool:
+    """Whether a sweep entry is a run's checkpoint (``sb3:<run>@<steps>``), not a
+    reference alone (a controller, or a network base's model ``sb3:<folder>``)."""
+    return controller.startswith("sb3:") and "@" in controller
 
 
 def thin(runs: Sequence[Run], every: int) -> list[Run]:
@@ -185,20 +193,32 @@ def study_gains(runs: Sequence[Run]) -> str:
     Raises:
         InvalidConfigError: runs with different gains.
     """
-    gains = {str(r.config.get("base_gains", "default")) for r in runs if r.base != "none"}
+    gains = {
+        str(r.config.get("base_gains", "default"))
+        for r in runs
+        if r.base not in ("none", NETWORK_BASE)
+    }
     gains |= {
         str(r.config.get("imitate_gains", "default"))
         for r in runs
         if r.base == "none" and r.config.get("imitate")
     }
+    for r in runs:  # a network base that imitated a controller: that controller's gains
+        if r.base == NETWORK_BASE:
+            base = yaml.safe_load((Path(str(r.config["base_model"])) / "config.yml").read_text())
+            if base["config"].get("imitate"):
+                gains.add(str(base["config"].get("imitate_gains", "default")))
     if len(gains) > 1:
         raise InvalidConfigError(f"the runs' base or expert gains differ: {sorted(gains)}")
     return gains.pop() if gains else "default"
 
 
 def reference_of(run: Run) -> str:
-    """The controller a run is compared with: its base; for pure RL the controller it
-    imitated (``imitate``), else PD + gravity."""
+    """The controller a run is compared with: its base (a network base: its model,
+    ``sb3:<base_model>``); for pure RL the controller it imitated (``imitate``), else
+    PD + gravity."""
+    if run.base == NETWORK_BASE:
+        return f"sb3:{run.config['base_model']}"
     if run.base != "none":
         return run.base
     return str(run.config.get("imitate") or PURE_REFERENCE)
@@ -364,7 +384,7 @@ def final_table(df: pd.DataFrame, runs: Sequence[Run], resamples: int) -> str:
         alone = {
             c: g.set_index(key)
             for c, g in gd.groupby("controller")
-            if not str(c).startswith("sb3:")
+            if not is_checkpoint_entry(str(c))
         }
         for ctrl, g in alone.items():
             lines.append(
@@ -496,7 +516,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
     curves = curve_frame(df, runs)
     curves.to_csv(out / "learning_curves.csv", index=False, float_format="%.17g")
     baselines = {
-        dist: gd[~gd["controller"].str.startswith("sb3:")]
+        dist: gd[~gd["controller"].map(is_checkpoint_entry)]
         .groupby("controller")["path_dist_rms"]
         .mean()
         for dist, gd in df.groupby("disturbance")

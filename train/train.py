@@ -56,8 +56,15 @@ from stable_baselines3.common.logger import configure as configure_logger
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 from torch import nn
 
+from agents.hold import ActionRepeat, check_decision_every
 from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
-from agents.residual import check_base_gains, check_prior, check_safeguards
+from agents.residual import (
+    RESIDUAL_BASES,
+    check_base_gains,
+    check_base_model,
+    check_prior,
+    check_safeguards,
+)
 from ptrack_gym.envs.rewards import REWARD_MODES
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
@@ -93,8 +100,9 @@ from train.imitation import (
 )
 from train.sb3_runs import ALGOS, BACKENDS, algo_class
 
-#: ``--residual`` choices: "none" (pure RL) or a base controller name.
-RESIDUAL_CHOICES: tuple[str, ...] = ("none", *CONTROLLER_NAMES)
+#: ``--residual`` choices: "none" (pure RL), a base controller name, or "network" (a saved
+#: pure policy, ``base_model``).
+RESIDUAL_CHOICES: tuple[str, ...] = ("none", *RESIDUAL_BASES)
 
 __all__ = [
     "ALGOS",
@@ -138,6 +146,10 @@ class TrainConfig:
     """Residual only: the base controller's gains, "default" (the robot's default rates at
     the control rate) or "tuned" (``agents/tuned``, the main job's); evaluation rebuilds
     the run's env with the same."""
+    base_model: str | None = None
+    """``residual="network"`` only: the folder of the saved pure SAC policy that is the base
+    (``model.zip``, ``vecnormalize.pkl``; ``agents.network``) — RL then learns a correction
+    to a frozen policy, e.g. an imitation (``imitate``), without touching its weights."""
     disturbance: str = "none"
     """Training disturbance: "none", a preset ("impulse") or "preset:level" ("push:0.5")."""
     eval_disturbance: str | None = None
@@ -195,6 +207,12 @@ class TrainConfig:
     init_log_std: float | None = None
     """SAC only: the actor's log-std layer starts constant at this value (exploration
     std exp(init_log_std) before tanh); None: SB3's initialisation."""
+    decision_every: int = 1
+    """The policy decides every this many control steps and its action is held in between
+    (``agents.hold.ActionRepeat``; the env and a residual's base still run every step):
+    ``steps``, checkpoints and warm-ups then count decisions, each worth this many env steps,
+    and the reward of a decision is the mean of its steps'. Evaluation holds the action the
+    same way (``agents.hold.HeldActionPolicy``). 1: every step."""
     critic_warmup_steps: int = 0
     """Off-policy only: the actor is frozen (its parameters get no update) for this many
     steps after ``learning_starts`` while the critic learns from what it does; with
@@ -340,9 +358,10 @@ def validate(cfg: TrainConfig) -> Resolved:
                 ),
             )
         if residual_kwargs:
-            own = ("base_gains", "prior_gain_per_rad")
+            own = ("base_gains", "prior_gain_per_rad", "base_model")
             check_safeguards(**{k: v for k, v in residual_kwargs.items() if k not in own})
             check_prior(cfg.residual, cfg.prior_gain_per_rad)
+            check_base_model(cfg.residual, cfg.base_model)
             if cfg.base_gains == "tuned":
                 tuned_rates(profile.name, cfg.residual)  # raises naming the tuned files there are
         if cfg.imitate is not None and cfg.imitate_gains == "tuned":
@@ -403,6 +422,12 @@ DEMO_BC_STREAM = 7919
 
 
 def _validate_imitation(cfg: TrainConfig) -> None:
+    try:
+        check_decision_every(cfg.decision_every)
+    except InvalidConfigError as exc:
+        raise TrainConfigError(str(exc)) from None
+    if cfg.imitate is not None and cfg.decision_every != 1:
+        raise TrainConfigError("imitate labels every control step: keep decision_every 1")
     if not (math.isfinite(cfg.demo_bc_weight) and cfg.demo_bc_weight >= 0):
         raise TrainConfigError(f"demo_bc_weight must be >= 0, got {cfg.demo_bc_weight}")
     if cfg.imitate is None:
@@ -471,7 +496,8 @@ def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
         return
     saved = yaml.safe_load(path.read_text()).get("config", {})
     for key in ("algo", "backend", "env_id", "residual", "scale_fraction", "scale_accel_rad_s2",
-                "base_gains", "start", "episode_s", "reward_weights", "reward", "kernel_weights",
+                "base_gains", "base_model", "decision_every", "start", "episode_s",
+                "reward_weights", "reward", "kernel_weights",
                 "max_path_distance", "action_penalty", "gate_rad",
                 "gate_deadband_rad", "prior_gain_per_rad", "imitate", "imitate_gains",
                 "imitate_rounds", "imitate_steps", "imitate_round_steps", "imitate_noise",
@@ -483,10 +509,17 @@ def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
 
 
 # -- environments ----------------------------------------------------------------------
+def build_decision_env(decision_every: int, *args: Any) -> gym.Env:
+    """``build_env(*args)``, its actions held for ``decision_every`` steps when > 1."""
+    env = build_env(*args)
+    return env if decision_every == 1 else ActionRepeat(env, decision_every)
+
+
 def _env_factory(res: Resolved, disturbance: str | None) -> Callable[[], gym.Env]:
     c = res.cfg
     return partial(
-        build_env,
+        build_decision_env,
+        c.decision_every,
         c.env_id,
         c.residual,
         c.scale_fraction,
@@ -847,6 +880,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--base-gains", choices=GAIN_CHOICES, default=d.base_gains,
         help="the residual's base controller gains (tuned: agents/tuned)",
     )  # fmt: skip
+    p.add_argument(
+        "--base-model", default=None,
+        help="--residual network: the folder of the saved pure policy that is the base",
+    )  # fmt: skip
     p.add_argument("--disturbance", default=d.disturbance, help="none | preset | preset:level")
     p.add_argument("--eval-disturbance", default=None, help="default: --disturbance")
     p.add_argument("--steps", type=int, default=None, help="default: the YAML's n_timesteps")
@@ -897,6 +934,10 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     p.add_argument("--init-log-std", type=float, default=None)
     p.add_argument("--critic-warmup-steps", type=int, default=d.critic_warmup_steps)
+    p.add_argument(
+        "--decision-every", type=int, default=d.decision_every,
+        help="the policy decides every k control steps, holding its action in between",
+    )  # fmt: skip
     p.add_argument(
         "--actor-lr-scale", type=float, default=d.actor_lr_scale,
         help="SAC/TD3: the actor's learning rate as a fraction of the critic's",

@@ -1,0 +1,224 @@
+"""A trained pure policy run as a :class:`~agents.base.Controller`, so it can be a base.
+
+:class:`NetworkController` turns a saved pure SB3 SAC policy (observation → normalized
+torque, no controller inside) back into the controller interface: from the measured (q, q̇)
+and its own clock s it rebuilds the env's observation (``TrackingEnv``, 6n + 2 entries:
+q, q̇, q_r(s), q_r'(s), q_r − q, q_r' − q̇, sin/cos of 2π s / S, clipped to the observation
+space and rounded to float32 as the env does), normalizes it with the run's frozen
+``VecNormalize`` statistics, o' = clip((o − μ)/√(σ² + ε), ±c), and returns
+
+.. math::
+
+    \\tau = \\tau_{max} \\odot \\tanh(\\mu_\\theta(o')),
+
+SAC's deterministic action tanh(μ(s)) times the torque limits (N·m). The actor runs in
+NumPy (float32, weights copied out of the torch module once), so no torch thread runs in
+the control loop. Its clock starts at the ``s_ref = s₀ + t`` of :meth:`reset` and advances
+by dt per step — the env's own s_ref, so on the env that trained it, run through
+:class:`~agents.policy.ControllerPolicy`, it acts as ``model.predict(obs,
+deterministic=True)`` does (to float32 rounding; ``tests/test_network_controller.py``).
+
+Why: the residual wrapper (:mod:`agents.residual`) adds a learned correction to any
+controller; with this adapter its base can be a frozen imitation (``train.imitation``), so
+RL refines a pure policy without touching its weights — residual policy learning over a
+learned initial policy (Silver et al., 2018; Ankile et al., "From imitation to refinement",
+2024), where fine-tuning the imitation itself carried every seed off the path (docs/rl.md).
+Imports torch and SB3 only in :func:`load_network_controller`.
+"""
+
+from __future__ import annotations
+
+import math
+import pickle
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents.base import FloatArray
+from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.paths import ReferencePath
+
+#: The files of a pure model folder (``train.train``'s run folder or a ``models/`` copy).
+MODEL_FILE = "model.zip"
+VECNORMALIZE_FILE = "vecnormalize.pkl"
+
+
+@dataclass(frozen=True)
+class NumpyMlp:
+    """A ReLU MLP's layers as float32 arrays: hidden (W, b) pairs with ReLU, then the output
+    (W, b) without activation; W of shape (out, in) as torch stores it."""
+
+    hidden: tuple[tuple[np.ndarray, np.ndarray], ...]
+    output: tuple[np.ndarray, np.ndarray]
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """The output for one input vector x (float32)."""
+        for w, b in self.hidden:
+            x = np.maximum(w @ x + b, 0.0, dtype=np.float32)
+        w, b = self.output
+        return w @ x + b
+
+
+@dataclass(frozen=True)
+class ObsNormalizer:
+    """VecNormalize's observation map o' = clip((o − μ)/√(σ² + ε), −c, c), float32 out."""
+
+    mean: np.ndarray
+    var: np.ndarray
+    epsilon: float
+    clip: float
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        z = (obs - self.mean) / np.sqrt(self.var + self.epsilon)
+        return np.clip(z, -self.clip, self.clip).astype(np.float32)
+
+
+class NetworkController:
+    """A pure policy's deterministic action as a torque controller (see module docstring).
+
+    Args:
+        actor: μ_θ, the normalized observation → pre-tanh action map.
+        normalizer: the frozen observation statistics (None: the raw observation).
+        path: the reference path q_r(s) the observation describes.
+        obs_high: the observation space's bound (6n + 2 entries); the observation is clipped
+            to ±obs_high as the env clips it.
+        torque_limits_nm: τ_max per joint (N·m).
+    """
+
+    def __init__(
+        self,
+        actor: NumpyMlp,
+        normalizer: ObsNormalizer | None,
+        path: ReferencePath,
+        obs_high: FloatArray,
+        torque_limits_nm: FloatArray,
+    ) -> None:
+        self.n = len(torque_limits_nm)
+        if len(obs_high) != 6 * self.n + 2:
+            raise InvalidConfigError(
+                f"a pure policy's observation has 6n + 2 = {6 * self.n + 2} entries, "
+                f"this env's has {len(obs_high)}"
+            )
+        self.actor = actor
+        self.normalizer = normalizer
+        self.path = path
+        self._high = np.asarray(obs_high, dtype=np.float64)
+        self.torque_limits_nm = np.asarray(torque_limits_nm, dtype=np.float64)
+        self._obs = np.zeros(6 * self.n + 2)
+        self.s = 0.0
+        self._last_action = np.zeros(self.n)
+
+    def reset(self, q: FloatArray, qd: FloatArray, s_ref: float) -> None:
+        """Start the clock at ``s_ref`` (s); the network has no other state."""
+        self.s = float(s_ref)
+        self._last_action = np.zeros(self.n)
+
+    def observation(self, q: FloatArray, qd: FloatArray) -> np.ndarray:
+        """The env's observation (float32) of measured (q, q̇) at the clock's s."""
+        n, o = self.n, self._obs
+        q_ref, qd_ref, _ = self.path.evaluate(self.s)
+        o[:n], o[n : 2 * n], o[2 * n : 3 * n], o[3 * n : 4 * n] = q, qd, q_ref, qd_ref
+        o[4 * n : 5 * n] = q_ref - q
+        o[5 * n : 6 * n] = qd_ref - qd
+        omega = 2.0 * math.pi * self.s / self.path.period_s
+        o[6 * n], o[6 * n + 1] = math.sin(omega), math.cos(omega)
+        return np.minimum(np.maximum(o, -self._high), self._high).astype(np.float32)
+
+    def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
+        """τ = τ_max ⊙ tanh(μ_θ(o')) (N·m) at the clock's s; then s += dt."""
+        obs = self.observation(q, qd)
+        x = self.normalizer(obs) if self.normalizer is not None else obs
+        a = np.tanh(self.actor(x)).astype(np.float64)
+        self._last_action = a
+        self.s += dt
+        return a * self.torque_limits_nm
+
+    def diagnostics(self) -> dict[str, float]:
+        """The clock s (s) and the last action's largest magnitude (normalized)."""
+        return {"s": self.s, "max_abs_action": float(np.max(np.abs(self._last_action)))}
+
+
+def numpy_actor(model: Any) -> NumpyMlp:
+    """The deterministic-action network μ_θ of an SB3 SAC model as a :class:`NumpyMlp`.
+
+    Raises:
+        InvalidConfigError: not a SAC actor of Linear and ReLU layers on flat observations.
+    """
+    import torch
+
+    actor = getattr(getattr(model, "policy", None), "actor", None)
+    if actor is None or not hasattr(actor, "latent_pi") or not hasattr(actor, "mu"):
+        raise InvalidConfigError("a network base must be a pure SAC policy (an SB3 SAC model)")
+    if type(actor.features_extractor).__name__ != "FlattenExtractor":
+        raise InvalidConfigError("a network base must use SB3's flat observation features")
+    hidden: list[tuple[np.ndarray, np.ndarray]] = []
+    layers = list(actor.latent_pi)
+    for k, layer in enumerate(layers):
+        if isinstance(layer, torch.nn.Linear):
+            if k + 1 >= len(layers) or not isinstance(layers[k + 1], torch.nn.ReLU):
+                raise InvalidConfigError("a network base's hidden layers must be Linear + ReLU")
+            hidden.append(_weights(layer))
+        elif not isinstance(layer, torch.nn.ReLU):
+            raise InvalidConfigError(
+                f"a network base's hidden layers must be Linear + ReLU, got {type(layer).__name__}"
+            )
+    if not isinstance(actor.mu, torch.nn.Linear):
+        raise InvalidConfigError("a network base's output must be one Linear layer")
+    return NumpyMlp(tuple(hidden), _weights(actor.mu))
+
+
+def _weights(layer: Any) -> tuple[np.ndarray, np.ndarray]:
+    w = layer.weight.detach().cpu().numpy().astype(np.float32)
+    b = layer.bias.detach().cpu().numpy().astype(np.float32)
+    return w, b
+
+
+def load_normalizer(path: Path) -> ObsNormalizer | None:
+    """The observation normalization of a saved ``VecNormalize`` (None when it does not
+    normalize observations)."""
+    with path.open("rb") as f:
+        vec_normalize = pickle.load(f)
+    if not getattr(vec_normalize, "norm_obs", False):
+        return None
+    rms = vec_normalize.obs_rms
+    return ObsNormalizer(
+        np.asarray(rms.mean, dtype=np.float64),
+        np.asarray(rms.var, dtype=np.float64),
+        float(vec_normalize.epsilon),
+        float(vec_normalize.clip_obs),
+    )
+
+
+def load_network_controller(model_dir: str | Path, env: Any) -> NetworkController:
+    """The pure policy saved in ``model_dir`` (``model.zip``, and ``vecnormalize.pkl`` when
+    the run normalized observations) as a controller for ``env`` (any wrapper of a
+    ``TrackingEnv`` of the robot it was trained on).
+
+    Raises:
+        InvalidConfigError: no such folder or model, or not a pure SAC policy, or an
+            observation size that does not match the env.
+    """
+    folder = Path(model_dir)
+    if not (folder / MODEL_FILE).is_file():
+        raise InvalidConfigError(f"no pure policy at {folder}: {MODEL_FILE} missing")
+    from stable_baselines3 import SAC
+
+    try:
+        model = SAC.load(folder / MODEL_FILE, device="cpu")
+    except (ValueError, KeyError, TypeError, AttributeError) as err:  # another algorithm's zip
+        raise InvalidConfigError(f"{folder / MODEL_FILE} is not a SAC model: {err}") from None
+    stats = folder / VECNORMALIZE_FILE
+    normalizer = load_normalizer(stats) if stats.is_file() else None
+    u = env.unwrapped
+    obs_high = np.asarray(u.observation_space.high, dtype=np.float64)
+    shape = model.observation_space.shape
+    if shape != u.observation_space.shape:
+        raise InvalidConfigError(
+            f"{folder} observes {shape}, the env {u.observation_space.shape}: "
+            "a network base must be a pure policy of this robot"
+        )
+    return NetworkController(
+        numpy_actor(model), normalizer, u.path, obs_high, np.asarray(u.torque_limits_nm)
+    )

@@ -1,0 +1,162 @@
+"""A saved pure policy as a controller (``agents.network``) and as a residual's base
+(``residual="network"``): it acts as the SB3 model does, a zero residual over it runs
+exactly as it does alone, and every bad configuration is refused."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip(
+    "stable_baselines3", reason="the optional 'train' extra (SB3, torch) is not installed"
+)
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+from stable_baselines3 import SAC, TD3
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+import ptrack_gym  # noqa: F401  (registers the envs)
+from agents.network import load_network_controller
+from agents.policy import ControllerPolicy
+from agents.residual import make_residual_env
+from ptrack_gym.errors import InvalidConfigError
+from train.train import TrainConfig, TrainConfigError, validate
+
+TWO_LINK = "ptrack_gym/TwoLinkTrack-v0"
+SHORT = {"control_hz": 250.0, "max_episode_steps": 150, "start": "rest_near_path"}
+
+
+def _save_pure_model(folder: Path, seed: int = 0, env_id: str = TWO_LINK) -> SAC:
+    """A pure SAC policy with random weights and observation statistics from a short
+    random rollout (so the normalization is not the identity), saved as a run folder."""
+    venv = VecNormalize(DummyVecEnv([lambda: gym.make(env_id, **SHORT)]), norm_reward=False)
+    venv.seed(seed)
+    venv.reset()
+    rng = np.random.default_rng(seed)
+    for _ in range(60):
+        venv.step(rng.uniform(-0.2, 0.2, size=(1, venv.action_space.shape[0])))
+    model = SAC("MlpPolicy", venv, seed=seed, policy_kwargs={"net_arch": [32, 32]}, device="cpu")
+    with torch.no_grad():  # small actions: off tanh's saturation, where errors would hide
+        model.actor.mu.weight.mul_(0.2)
+    folder.mkdir(parents=True, exist_ok=True)
+    model.save(folder / "model.zip")
+    venv.save(str(folder / "vecnormalize.pkl"))
+    venv.close()
+    return model
+
+
+@pytest.mark.parametrize("disturbance", [None, "noise", "impulse"])
+def test_network_controller_acts_as_the_sb3_model_predicts(
+    make_env, tmp_path: Path, disturbance: str | None
+) -> None:
+    """Through ControllerPolicy, the controller's action equals ``model.predict`` on the
+    env's own observation, normalized by the saved statistics, at every step (float32
+    rounding) — a wrong clock, observation layout or normalization breaks it."""
+    model = _save_pure_model(tmp_path / "pure")
+    stats = VecNormalize.load(str(tmp_path / "pure" / "vecnormalize.pkl"),
+                              DummyVecEnv([lambda: gym.make(TWO_LINK, **SHORT)]))  # fmt: skip
+    env = make_env(TWO_LINK, disturbance=disturbance, **SHORT)
+    policy = ControllerPolicy(env, load_network_controller(tmp_path / "pure", env))
+    actions = []
+    for seed in (3, 4):
+        obs, _ = env.reset(seed=seed)
+        done = False
+        while not done:
+            mine = policy.action(obs)
+            theirs, _ = model.predict(stats.normalize_obs(obs[None]), deterministic=True)
+            assert np.abs(mine - theirs[0]).max() < 1e-6
+            actions.append(mine)
+            obs, _, term, trunc, _ = env.step(mine)
+            done = term or trunc
+    actions = np.array(actions)
+    assert len(actions) > 50
+    assert np.mean(np.abs(actions) < 0.9) > 0.5  # mostly unsaturated: the check has teeth
+
+
+def test_shipped_iiwa_imitation_runs_as_a_controller(make_env) -> None:
+    """The shipped pure iiwa policy (the network base of the fourth try) acts as SB3 does."""
+    folder = Path(__file__).resolve().parents[1] / "models" / "sac_pure_dagger_iiwa"
+    model = SAC.load(folder / "model.zip", device="cpu")
+    env = make_env("ptrack_gym/IiwaTrack-v0", control_hz=1000.0, max_episode_steps=300)
+    plain = DummyVecEnv([lambda: gym.make("ptrack_gym/IiwaTrack-v0")])
+    stats = VecNormalize.load(str(folder / "vecnormalize.pkl"), plain)
+    policy = ControllerPolicy(env, load_network_controller(folder, env))
+    obs, _ = env.reset(seed=0)
+    for _ in range(300):
+        mine = policy.action(obs)
+        theirs, _ = model.predict(stats.normalize_obs(obs[None]), deterministic=True)
+        assert np.abs(mine - theirs[0]).max() < 1e-6
+        obs, *_ = env.step(mine)
+
+
+@pytest.mark.parametrize("disturbance", [None, "impulse"])
+def test_zero_residual_over_a_network_is_bit_identical_to_the_network_alone(
+    make_env, tmp_path: Path, disturbance: str | None
+) -> None:
+    """a = 0 over a network base reproduces the network run standalone exactly."""
+    _save_pure_model(tmp_path / "pure", seed=1)
+    kwargs = {**SHORT, "disturbance": disturbance}
+    wrapped = make_env.track(
+        make_residual_env(TWO_LINK, "network", base_model=str(tmp_path / "pure"), **kwargs)
+    )
+    plain = make_env(TWO_LINK, **kwargs)
+    policy = ControllerPolicy(plain, load_network_controller(tmp_path / "pure", plain))
+    obs_w, _ = wrapped.reset(seed=5)
+    obs_p, _ = plain.reset(seed=5)
+    n = wrapped.unwrapped.n
+    for _ in range(150):
+        obs_w, r_w, term_w, trunc_w, _ = wrapped.step(np.zeros(n, dtype=np.float32))
+        obs_p, r_p, term_p, trunc_p, _ = plain.step(policy.action(obs_p))
+        assert np.array_equal(obs_w[: obs_p.shape[0]], obs_p) and r_w == r_p
+        assert (term_w, trunc_w) == (term_p, trunc_p)
+        if term_p or trunc_p:
+            break
+    q_w, qd_w = wrapped.unwrapped.joint_state()
+    q_p, qd_p = plain.unwrapped.joint_state()
+    assert np.array_equal(q_w, q_p) and np.array_equal(qd_w, qd_p)
+
+
+def test_network_base_spec_recreates_the_wrapper(make_env, tmp_path: Path) -> None:
+    """Given by name and folder, the wrapper is re-creatable from its spec."""
+    _save_pure_model(tmp_path / "pure")
+    env = make_env.track(make_residual_env(TWO_LINK, "network", base_model=str(tmp_path / "pure")))
+    again = make_env.track(env.spec.make())
+    assert again.base_model == str(tmp_path / "pure")
+    assert type(again.controller).__name__ == "NetworkController"
+
+
+def test_bad_network_bases_are_refused(make_env, tmp_path: Path) -> None:
+    """No folder, a folder without a model, a model for another robot, a base_model on a
+    controller base, gains on a network, another algorithm's model: each a clear error."""
+    _save_pure_model(tmp_path / "pure")
+    with pytest.raises(InvalidConfigError, match="needs base_model"):
+        make_residual_env(TWO_LINK, "network")
+    with pytest.raises(InvalidConfigError, match=r"no model\.zip"):
+        make_residual_env(TWO_LINK, "network", base_model=str(tmp_path / "empty"))
+    with pytest.raises(InvalidConfigError, match="base_model is for a 'network' base"):
+        make_residual_env(TWO_LINK, "passivity", base_model=str(tmp_path / "pure"))
+    with pytest.raises(InvalidConfigError, match="no gains"):
+        make_residual_env(
+            TWO_LINK, "network", base_model=str(tmp_path / "pure"), base_gains="tuned"
+        )
+    with pytest.raises(InvalidConfigError, match="pure policy of this robot"):
+        make_residual_env("ptrack_gym/IiwaTrack-v0", "network", base_model=str(tmp_path / "pure"))
+    env = make_env(TWO_LINK, **SHORT)
+    TD3("MlpPolicy", env, device="cpu").save(tmp_path / "td3" / "model.zip")
+    with pytest.raises(InvalidConfigError, match=r"not a SAC model|pure SAC policy"):
+        load_network_controller(tmp_path / "td3", env)
+
+
+def test_train_config_validates_the_network_base(tmp_path: Path) -> None:
+    """``train.train`` refuses a network base without a model, a model without a network
+    base, and accepts the pair."""
+    _save_pure_model(tmp_path / "pure")
+    with pytest.raises(TrainConfigError, match="needs base_model"):
+        validate(TrainConfig(out=str(tmp_path / "a"), residual="network"))
+    with pytest.raises(TrainConfigError, match="need a residual base"):
+        validate(TrainConfig(out=str(tmp_path / "b"), base_model=str(tmp_path / "pure")))
+    validate(TrainConfig(out=str(tmp_path / "c"), residual="network",
+                         base_model=str(tmp_path / "pure")))  # fmt: skip
