@@ -15,7 +15,9 @@ present, acting deterministically; ``sb3:<run folder>@<steps>`` runs the run's c
 of that many steps instead (:mod:`train.sb3_runs`). A model runs at its training control
 rate, so it meets the same disturbance schedule in time (onsets, frequencies) but per-step
 noise draws differ; its env's disturbance horizon is the sweep's episode length, as for
-every other controller. Either way the episode is one loop over a policy's ``predict``.
+every other controller. A model trained to decide every k steps (``decision_every``) runs
+on the unrepeated env behind :class:`~agents.hold.HeldActionPolicy`, so every env step is
+recorded. Either way the episode is one loop over a policy's ``predict``.
 
 Imports are kept to what an episode needs: torch and SB3 only when a model is evaluated.
 """
@@ -33,6 +35,7 @@ import numpy as np
 from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker, TimeLimit
 
 import ptrack_gym  # noqa: F401  (registers the envs)
+from agents.hold import HeldActionPolicy
 from agents.policy import ControllerPolicy
 from agents.registry import make_controller
 from ptrack_gym.errors import ControllerDivergedError
@@ -202,7 +205,8 @@ def _sb3_env_and_policy(
             if c["residual"] != "none"
             else None,
         )
-        return env, policy
+        k = int(c.get("decision_every", 1))
+        return env, (policy if k == 1 else HeldActionPolicy(policy, k))
 
     return _cached(_SB3_CACHE, (controller, _env_key(settings), disturbance, level), build)
 
