@@ -122,3 +122,29 @@ def test_train_config_checks_the_decision_period(tmp_path) -> None:
         validate(TrainConfig(out=str(tmp_path / "b"), decision_every=5, imitate="pd_gravity",
                              init_log_std=-3.0, overrides={"learning_starts": 0}))  # fmt: skip
     validate(TrainConfig(out=str(tmp_path / "c"), decision_every=5))
+
+
+def test_a_run_trains_on_decisions_and_is_evaluated_holding_them(tmp_path) -> None:
+    """``--decision-every 5``: the run's steps are decisions (10 per 50-step episode in its
+    Monitor log), and the evaluation runs it behind HeldActionPolicy on the unrepeated env,
+    recording every env step."""
+    pytest.importorskip("stable_baselines3", reason="the optional 'train' extra")
+    import pandas as pd
+
+    from train.episode import EpisodeSettings, Task, _sb3_env_and_policy, run_episode
+    from train.train import main
+
+    out = tmp_path / "run"
+    main(["--algo", "sac", "--residual", "passivity", "--steps", "60", "--out", str(out),
+          "--episode-s", "0.2", "--eval-freq", "0", "--decision-every", "5", "--zero-init-residual",
+          "--set", "learning_starts=20", "--set", "policy_kwargs=dict(net_arch=[16])"])  # fmt: skip
+    monitor = pd.read_csv(next(out.glob("monitor/*/*.monitor.csv")), skiprows=1)
+    assert (monitor["l"] == 10).all() and len(monitor) == 6
+    settings = EpisodeSettings(
+        env_id=TWO_LINK, episode_s=0.2, control_hz=250.0, start="on_path", gains="default",
+        failure_distance_rad=0.5, recovery_threshold_rad=0.01,
+    )  # fmt: skip
+    row, _ = run_episode(Task(f"sb3:{out}", "impulse", 1.0, 0, 0), settings)
+    assert row["steps"] == 50
+    _, policy = _sb3_env_and_policy(f"sb3:{out}", settings, "impulse", 1.0)
+    assert isinstance(policy, HeldActionPolicy) and policy.k == 5

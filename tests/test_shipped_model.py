@@ -84,7 +84,10 @@ def test_shipped_model_runs_deterministically_and_acts(model: str, monkeypatch) 
     assert trace is not None
     gated = (run_dir / "deploy.yml").exists()
     if base["residual"] != "none" and not gated:
-        alone, _ = run_episode(Task(base["residual"], "impulse", 1.0, 0, 0), settings)
+        base_name = (  # a network base is a shipped model of its own
+            f"sb3:{base['base_model']}" if base["residual"] == "network" else base["residual"]
+        )
+        alone, _ = run_episode(Task(base_name, "impulse", 1.0, 0, 0), settings)
         assert row_a["tau_rms_frac"] != alone["tau_rms_frac"]  # the residual acted
     elif gated:  # on the path it is its base, bit for bit; pushed off it, it acts
         gate = yaml.safe_load((run_dir / "deploy.yml").read_text())

@@ -157,11 +157,11 @@ def test_an_interrupted_run_saves_the_steps_it_took_and_resumes_from_them(
                 raise KeyboardInterrupt
             return self.env.step(action)
 
-    real = tt.build_env
-    monkeypatch.setattr(tt, "build_env", lambda *a, **k: CtrlC(real(*a, **k)))
+    real = tt.build_decision_env
+    monkeypatch.setattr(tt, "build_decision_env", lambda *a, **k: CtrlC(real(*a, **k)))
     with pytest.raises(KeyboardInterrupt):
         main(argv(out, "sac", "passivity", 100, "--eval-freq", "0", "--resume"))
-    monkeypatch.setattr(tt, "build_env", real)
+    monkeypatch.setattr(tt, "build_decision_env", real)
     saved = SAC.load(out / "model.zip")
     assert saved.num_timesteps == 139  # the 40th step raised before it counted
     ckpt = out / "checkpoints"

@@ -1,6 +1,6 @@
 """How much of its authority a trained policy uses: its deterministic actions over one
 undisturbed episode of the env it was trained in (the run's own residual base, authority,
-gate and control rate, as the evaluation builds it).
+gate, control rate and decision period; its steps are its decisions).
 
 A residual meant to correct its base should act small; one that sits at its bounds is
 feedback of its own. For each joint j, over the episode's steps t (actions in [-1, 1],
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from train.envs import build_env, residual_wrapper_kwargs
+from train.envs import build_decision_env, residual_wrapper_kwargs
 from train.sb3_runs import deploy_safeguards, load_sb3_policy, run_config
 
 
@@ -61,7 +61,8 @@ def action_usage(run_dir: Path, seed: int, threshold: float = 0.9) -> ActionUsag
     config, derived = cfg["config"], cfg["derived"]
     policy, _ = load_sb3_policy(f"sb3:{run_dir}", config["env_id"])
     residual = config["residual"]
-    env = build_env(  # as the evaluation builds it (train.episode): the run's base and gate
+    env = build_decision_env(  # as it trained and is evaluated: its base, gate, decisions
+        int(config.get("decision_every", 1)),
         config["env_id"],
         residual,
         config["scale_fraction"],

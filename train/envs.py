@@ -116,3 +116,15 @@ def build_env(
     from agents.residual import make_residual_env
 
     return make_residual_env(env_id, residual, scale_fraction, **(residual_kwargs or {}), **kwargs)
+
+
+def build_decision_env(decision_every: int, *args: Any, **kwargs: Any) -> gym.Env[Any, Any]:
+    """``build_env(*args, **kwargs)`` whose actions are held for ``decision_every`` control
+    steps when it is > 1 (``agents.hold.ActionRepeat``): the env a run with that decision
+    period trains in."""
+    env = build_env(*args, **kwargs)
+    if decision_every == 1:
+        return env
+    from agents.hold import ActionRepeat
+
+    return ActionRepeat(env, decision_every)

@@ -56,7 +56,7 @@ from stable_baselines3.common.logger import configure as configure_logger
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 from torch import nn
 
-from agents.hold import ActionRepeat, check_decision_every
+from agents.hold import check_decision_every
 from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
 from agents.residual import (
     RESIDUAL_BASES,
@@ -78,6 +78,7 @@ from train.checkpoints import (
 )
 from train.envs import (
     WRAPPER_DEFAULTS,
+    build_decision_env,
     build_env,
     check_env_kwargs,
     env_kwargs,
@@ -509,12 +510,6 @@ def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
 
 
 # -- environments ----------------------------------------------------------------------
-def build_decision_env(decision_every: int, *args: Any) -> gym.Env:
-    """``build_env(*args)``, its actions held for ``decision_every`` steps when > 1."""
-    env = build_env(*args)
-    return env if decision_every == 1 else ActionRepeat(env, decision_every)
-
-
 def _env_factory(res: Resolved, disturbance: str | None) -> Callable[[], gym.Env]:
     c = res.cfg
     return partial(
