@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants rl-iiwa-tuned-bc rl-iiwa-tuned-prior rl-iiwa-tuned-prior-seeds rl-iiwa-tuned-prior-ct rl-iiwa-prior-alone prior-vs-learned rl-iiwa-prior-bc-screen authority-probe rl-pure-sbx rl-pure-sbx-iiwa rl-pure-sbx-iiwa-ent rl-pure-dagger-iiwa rl-residual-imitation-iiwa rl-three-arms-iiwa heldout clean check-python
+.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants rl-iiwa-tuned-bc rl-iiwa-tuned-prior rl-iiwa-tuned-prior-seeds rl-iiwa-tuned-prior-ct rl-iiwa-prior-alone prior-vs-learned rl-iiwa-prior-bc-screen authority-probe rl-pure-sbx rl-pure-sbx-iiwa rl-pure-sbx-iiwa-ent rl-pure-dagger-iiwa rl-residual-imitation-iiwa rl-residual-k10-iiwa rl-three-arms-iiwa rl-three-arms-iiwa-k10 heldout clean check-python
 
 setup: $(STAMP)
 
@@ -271,10 +271,21 @@ rl-residual-imitation-iiwa: setup
 	$(PY) -m train.rl_campaign --config train/configs/rl_residual_imitation_iiwa.yml --out runs/rl_residual_imitation_iiwa --workers 2
 	$(PY) -m train.rl_study --runs runs/rl_residual_imitation_iiwa --out docs/results/rl_residual_imitation_iiwa --episodes 10 --no-progress
 
+# Issue 14: residuals over the tuned passivity and computed-torque controllers without the
+# control prior, deciding at 100 Hz, 5 seeds per base (~20 min of training on 2 cores), gated at
+# evaluation (~15 min).
+rl-residual-k10-iiwa: setup
+	$(call gated_study,train/configs/rl_residual_k10_iiwa.yml,runs/rl_residual_k10_iiwa,runs/rl_deploy_residual_k10_iiwa,docs/results/rl_deploy_residual_k10_iiwa,40000)
+
 # The iiwa's three arms (pure, residual on passivity, residual on computed torque; 5 seeds each)
 # on the same paired test episodes (needs the three targets' local runs; ~15 min on 2 cores).
 rl-three-arms-iiwa: setup
 	$(PY) -m train.evaluate --config train/configs/three_arms_iiwa.yml --no-progress
+
+# The three arms on equal RL budgets (each an SAC residual at 100 Hz, 400 000 env steps, 5 seeds;
+# needs the runs of rl-residual-imitation-iiwa and rl-residual-k10-iiwa; ~10 min on 2 cores).
+rl-three-arms-iiwa-k10: setup
+	$(PY) -m train.evaluate --config train/configs/three_arms_iiwa_k10.yml --no-progress
 
 # Pure SAC on the two-link with the sbx backend (make setup installs it, after torch):
 # 5 seeds to 300 000 steps (about 1 h of training on 2 cores), evaluated every 60 000 steps

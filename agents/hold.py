@@ -11,7 +11,10 @@ full rate, every step, underneath.
 * :class:`ActionRepeat` (training): one ``step`` applies the action for k env steps (fewer
   when the episode ends first) and returns the last observation, the *mean* of the k
   rewards (the per-step scale of the reward is kept), whether any step terminated or
-  truncated, and the last step's info with ``info["decision_steps"]`` the steps taken.
+  truncated, and the last step's info with ``info["decision_steps"]`` the steps taken. A
+  decision cut short by the episode's end scores the mean over the steps it lasted, as
+  every other decision does; with the bounded kernel reward (≥ 0) ending early still never
+  pays, since every later decision's reward is lost.
 * :class:`HeldActionPolicy` (evaluation): wraps anything with SB3's ``predict`` and asks it
   only every k calls, returning the held action in between — run on the unrepeated env,
   it takes exactly the decisions :class:`ActionRepeat` trains on (same observations, same

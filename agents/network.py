@@ -16,7 +16,7 @@ NumPy (float32, weights copied out of the torch module once), so no torch thread
 the control loop. Its clock starts at the ``s_ref = s₀ + t`` of :meth:`reset` and advances
 by dt per step — the env's own s_ref, so on the env that trained it, run through
 :class:`~agents.policy.ControllerPolicy`, it acts as ``model.predict(obs,
-deterministic=True)`` does (to float32 rounding; ``tests/test_network_controller.py``).
+deterministic=True)`` does (to float32 rounding; ``tests/test_network_base.py``).
 
 Why: the residual wrapper (:mod:`agents.residual`) adds a learned correction to any
 controller; with this adapter its base can be a frozen imitation (``train.imitation``), so
@@ -191,18 +191,55 @@ def load_normalizer(path: Path) -> ObsNormalizer | None:
     )
 
 
+def check_network_folder(model_dir: str | Path, robot: str | None = None) -> None:
+    """Check that ``model_dir`` holds a pure policy a network base can run, before anything
+    is built: ``model.zip``; and, when the folder has the ``config.yml`` of its training
+    run, that it was a pure (``residual: none``) SB3 SAC run deciding every step, on
+    ``robot`` (when given), with its ``vecnormalize.pkl`` if it normalized observations.
+
+    Raises:
+        InvalidConfigError: naming the first mismatch.
+    """
+    import yaml
+
+    folder = Path(model_dir)
+    if not (folder / MODEL_FILE).is_file():
+        raise InvalidConfigError(f"base_model {str(model_dir)!r}: no {MODEL_FILE} there")
+    cfg_file = folder / "config.yml"
+    if not cfg_file.is_file():
+        return  # a model saved by hand: its observation size is checked when it is loaded
+    saved = yaml.safe_load(cfg_file.read_text()) or {}
+    config, derived = saved.get("config", {}), saved.get("derived", {})
+    wanted = {"residual": "none", "algo": "sac", "backend": "sb3", "decision_every": 1}
+    defaults = {"backend": "sb3", "decision_every": 1}
+    for key, value in wanted.items():
+        if config.get(key, defaults.get(key)) != value:
+            raise InvalidConfigError(
+                f"base_model {str(model_dir)!r} must be a pure SB3 SAC policy deciding every "
+                f"step; its run has {key}={config.get(key)!r}"
+            )
+    if robot is not None and derived.get("robot") not in (None, robot):
+        raise InvalidConfigError(
+            f"base_model {str(model_dir)!r} was trained on {derived['robot']}, not {robot}"
+        )
+    if derived.get("vec_normalize") and not (folder / VECNORMALIZE_FILE).is_file():
+        raise InvalidConfigError(
+            f"base_model {str(model_dir)!r} normalizes observations but has no {VECNORMALIZE_FILE}"
+        )
+
+
 def load_network_controller(model_dir: str | Path, env: Any) -> NetworkController:
     """The pure policy saved in ``model_dir`` (``model.zip``, and ``vecnormalize.pkl`` when
     the run normalized observations) as a controller for ``env`` (any wrapper of a
     ``TrackingEnv`` of the robot it was trained on).
 
     Raises:
-        InvalidConfigError: no such folder or model, or not a pure SAC policy, or an
-            observation size that does not match the env.
+        InvalidConfigError: no such folder or model, not a pure SAC policy of this robot
+            (:func:`check_network_folder`), or an observation size that does not match the env.
     """
     folder = Path(model_dir)
-    if not (folder / MODEL_FILE).is_file():
-        raise InvalidConfigError(f"no pure policy at {folder}: {MODEL_FILE} missing")
+    u = env.unwrapped
+    check_network_folder(folder, u.robot_profile.name)
     from stable_baselines3 import SAC
 
     try:
@@ -211,7 +248,6 @@ def load_network_controller(model_dir: str | Path, env: Any) -> NetworkControlle
         raise InvalidConfigError(f"{folder / MODEL_FILE} is not a SAC model: {err}") from None
     stats = folder / VECNORMALIZE_FILE
     normalizer = load_normalizer(stats) if stats.is_file() else None
-    u = env.unwrapped
     obs_high = np.asarray(u.observation_space.high, dtype=np.float64)
     shape = model.observation_space.shape
     if shape != u.observation_space.shape:

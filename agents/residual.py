@@ -112,7 +112,6 @@ block of its own (the n entries of the last τ_base / τ_max) and hence no contr
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
@@ -207,17 +206,16 @@ def check_prior(base: str | None, prior_gain_per_rad: float) -> None:
         )
 
 
-def check_base_model(base: str | None, base_model: str | None) -> None:
+def check_base_model(base: str | None, base_model: str | None, robot: str | None = None) -> None:
     """Raise :class:`InvalidConfigError` unless ``base_model`` (a model folder) is given
     exactly when ``base`` is :data:`NETWORK_BASE` (None: a controller object) and then
-    holds a saved model."""
+    holds a pure policy of ``robot`` (when given; :func:`agents.network.check_network_folder`)."""
     if base == NETWORK_BASE:
         if not isinstance(base_model, str) or not base_model:
             raise InvalidConfigError("a network base needs base_model, a pure policy's folder")
-        from agents.network import MODEL_FILE
+        from agents.network import check_network_folder
 
-        if not (Path(base_model) / MODEL_FILE).is_file():
-            raise InvalidConfigError(f"base_model {base_model!r}: no {MODEL_FILE} there")
+        check_network_folder(base_model, robot)
     elif base_model is not None:
         raise InvalidConfigError(f"base_model is for a {NETWORK_BASE!r} base, not {base!r}")
 
@@ -325,9 +323,13 @@ class ResidualWrapper(
         check_base_gains(base_gains)
         if not isinstance(controller, str) and base_gains != "default":
             raise InvalidConfigError("base_gains is for a base given by name, not an object")
-        check_base_model(controller if isinstance(controller, str) else None, base_model)
         if controller == NETWORK_BASE and base_gains != "default":
             raise InvalidConfigError("a network base has no gains: keep base_gains 'default'")
+        check_base_model(
+            controller if isinstance(controller, str) else None,
+            base_model,
+            env.unwrapped.robot_profile.name,
+        )
         self._controller_name = controller if isinstance(controller, str) else None
         self._registered = False  # set by residual_env: the spec is the registered one
         if self._controller_name is not None:

@@ -10,6 +10,7 @@ pytest.importorskip(
     "stable_baselines3", reason="the optional 'train' extra (SB3, torch) is not installed"
 )
 
+import re
 from pathlib import Path
 
 import gymnasium as gym
@@ -144,6 +145,9 @@ def test_bad_network_bases_are_refused(make_env, tmp_path: Path) -> None:
         )
     with pytest.raises(InvalidConfigError, match="pure policy of this robot"):
         make_residual_env("ptrack_gym/IiwaTrack-v0", "network", base_model=str(tmp_path / "pure"))
+    iiwa_imitation = str(Path(__file__).resolve().parents[1] / "models" / "sac_pure_dagger_iiwa")
+    with pytest.raises(InvalidConfigError, match="trained on iiwa, not panda"):  # same obs size
+        make_residual_env("ptrack_gym/PandaTrack-v0", "network", base_model=iiwa_imitation)
     env = make_env(TWO_LINK, **SHORT)
     TD3("MlpPolicy", env, device="cpu").save(tmp_path / "td3" / "model.zip")
     with pytest.raises(InvalidConfigError, match=r"not a SAC model|pure SAC policy"):
@@ -160,3 +164,53 @@ def test_train_config_validates_the_network_base(tmp_path: Path) -> None:
         validate(TrainConfig(out=str(tmp_path / "b"), base_model=str(tmp_path / "pure")))
     validate(TrainConfig(out=str(tmp_path / "c"), residual="network",
                          base_model=str(tmp_path / "pure")))  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"config": {"residual": "passivity"}}, "residual='passivity'"),
+        ({"config": {"decision_every": 10}}, "decision_every=10"),
+        ({"config": {"algo": "td3"}}, "algo='td3'"),
+        ({"derived": {"robot": "panda"}}, "trained on panda, not two_link"),
+        ({"derived": {"vec_normalize": {"norm_obs": True}}, "drop": "vecnormalize.pkl"},
+         "has no vecnormalize.pkl"),
+    ],
+)  # fmt: skip
+def test_a_base_whose_run_is_not_a_pure_every_step_policy_is_refused(
+    tmp_path: Path, change: dict, message: str
+) -> None:
+    """With its run's config.yml beside it, a base must have been a pure SB3 SAC run of this
+    robot deciding every step, with its statistics if it normalized (checked before any env
+    or model is built)."""
+    import yaml
+
+    from agents.network import check_network_folder
+
+    _save_pure_model(tmp_path / "pure")
+    run = {"config": {"residual": "none", "algo": "sac", "backend": "sb3"},
+           "derived": {"robot": "two_link"}}  # fmt: skip
+    check_network_folder(tmp_path / "pure", "two_link")  # no config.yml: shape checked at load
+    (tmp_path / "pure" / "config.yml").write_text(yaml.safe_dump(run))
+    check_network_folder(tmp_path / "pure", "two_link")
+    for section in ("config", "derived"):
+        run[section].update(change.get(section, {}))
+    (tmp_path / "pure" / "config.yml").write_text(yaml.safe_dump(run))
+    if "drop" in change:
+        (tmp_path / "pure" / change["drop"]).unlink()
+    with pytest.raises(InvalidConfigError, match=re.escape(message)):
+        check_network_folder(tmp_path / "pure", "two_link")
+
+
+def test_train_refuses_a_base_of_another_robot_before_writing_anything(tmp_path: Path) -> None:
+    imitation = str(Path(__file__).resolve().parents[1] / "models" / "sac_pure_dagger_iiwa")
+    iiwa = "ptrack_gym/IiwaTrack-v0"
+    with pytest.raises(TrainConfigError, match="trained on iiwa, not two_link"):
+        validate(TrainConfig(out=str(tmp_path / "a"), residual="network", base_model=imitation))
+    with pytest.raises(TrainConfigError, match="a network base has no gains"):
+        tuned = TrainConfig(
+            out=str(tmp_path / "b"), env_id=iiwa, residual="network", base_model=imitation,
+            base_gains="tuned",
+        )  # fmt: skip
+        validate(tuned)
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

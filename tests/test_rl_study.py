@@ -70,7 +70,7 @@ def test_study_writes_curves_figure_and_final_table(study: Path, tmp_path: Path)
 
 @pytest.mark.parametrize(
     ("key", "value"),
-    [("disturbance", "push:1.0"), ("algo", "td3"), ("scale_fraction", 0.2)],
+    [("disturbance", "push:1.0"), ("algo", "td3"), ("scale_fraction", 0.2), ("decision_every", 10)],
 )
 def test_runs_that_differ_in_what_they_share_are_refused(
     study: Path, tmp_path: Path, key: str, value: object
@@ -111,12 +111,12 @@ def test_a_run_written_before_a_key_existed_groups_with_its_default(
 
 
 def test_the_group_key_defaults_are_train_configs() -> None:
-    from train.rl_study import GROUP_KEY_DEFAULTS, GROUP_KEYS
+    from train.rl_study import GROUP_KEY_DEFAULTS, GROUP_KEYS, SHARED_KEY_DEFAULTS
     from train.train import TrainConfig
 
     defaults = TrainConfig(out="")
     assert set(GROUP_KEY_DEFAULTS) == set(GROUP_KEYS)
-    for key, value in GROUP_KEY_DEFAULTS.items():
+    for key, value in {**GROUP_KEY_DEFAULTS, **SHARED_KEY_DEFAULTS}.items():
         assert getattr(defaults, key) == value, key
 
 

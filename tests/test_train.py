@@ -480,3 +480,17 @@ def test_to_argv_round_trips_every_field(tmp_path: Path) -> None:
     )  # fmt: skip
     assert parse_args(to_argv(cfg)) == cfg
     assert parse_args(to_argv(TrainConfig(out="x"))) == TrainConfig(out="x")
+
+
+def test_resume_compares_a_key_the_run_predates_with_its_default(tmp_path: Path) -> None:
+    """A run written before ``decision_every`` existed ran every step: resuming it with
+    another decision period is refused, as for any changed key."""
+    out = tmp_path / "old"
+    main(argv(out, "sac", "passivity", 60, "--eval-freq", "0"))
+    cfg_file = out / "config.yml"
+    saved = yaml.safe_load(cfg_file.read_text())
+    del saved["config"]["decision_every"]
+    cfg_file.write_text(yaml.safe_dump(saved))
+    with pytest.raises(TrainConfigError, match="decision_every=5 differs from the run's 1"):
+        main(argv(out, "sac", "passivity", 100, "--eval-freq", "0", "--resume",
+                  "--decision-every", "5"))  # fmt: skip

@@ -58,8 +58,11 @@ _CKPT = re.compile(r"rl_model_(\d+)_steps\.zip$")
 #: Run folders of ``train.rl_campaign``: ``<group>_s<seed>``.
 _CAMPAIGN_RUN = re.compile(r"^(.+)_s(\d+)$")
 
-#: The run-config keys every run of a study must share.
-SHARED_KEYS = ("algo", "env_id", "disturbance", "episode_s", "start")
+#: The run-config keys every run of a study must share (``decision_every`` too: the steps of
+#: its checkpoints and Monitor logs are decisions, so one step axis needs one period).
+SHARED_KEYS = ("algo", "env_id", "disturbance", "episode_s", "start", "decision_every")
+#: Their values for a run written before a key existed (it ran with the default).
+SHARED_KEY_DEFAULTS: dict[str, object] = {"decision_every": 1}
 
 #: The keys the runs of one group must share too (groups may differ in them: each has its
 #: own reward, hyperparameters and safeguards).
@@ -67,7 +70,7 @@ GROUP_KEYS = (
     "reward_weights", "reward", "kernel_weights", "max_path_distance", "hyperparams",
     "overrides", "scale_fraction", "scale_accel_rad_s2", "zero_init_residual", "action_penalty",
     "gate_rad", "gate_deadband_rad", "init_log_std", "critic_warmup_steps", "actor_lr_scale",
-    "actor_bc_weight", "prior_gain_per_rad", "base_model", "decision_every",
+    "actor_bc_weight", "prior_gain_per_rad", "base_model",
 )  # fmt: skip
 
 #: ``train.train.TrainConfig``'s defaults of :data:`GROUP_KEYS` (a test keeps them equal;
@@ -79,7 +82,7 @@ GROUP_KEY_DEFAULTS: dict[str, object] = {
     "scale_accel_rad_s2": None, "zero_init_residual": False, "action_penalty": 0.0,
     "gate_rad": None, "gate_deadband_rad": 0.0, "init_log_std": None, "critic_warmup_steps": 0,
     "actor_lr_scale": 1.0, "actor_bc_weight": 0.0, "prior_gain_per_rad": 0.0,
-    "base_model": None, "decision_every": 1,
+    "base_model": None,
 }  # fmt: skip
 
 #: The presets the final checkpoints are evaluated under (level 1), by default.
@@ -170,8 +173,9 @@ def discover(root: Path) -> list[Run]:
         pairs = [(key, first) for key in SHARED_KEYS]
         pairs += [(key, group_first[r.group]) for key in GROUP_KEYS]
         for key, other in pairs:
-            mine = r.config.get(key, GROUP_KEY_DEFAULTS.get(key))
-            theirs = other.config.get(key, GROUP_KEY_DEFAULTS.get(key))
+            default = GROUP_KEY_DEFAULTS.get(key, SHARED_KEY_DEFAULTS.get(key))
+            mine = r.config.get(key, default)
+            theirs = other.config.get(key, default)
             if mine != theirs:
                 raise InvalidConfigError(
                     f"{r.path} has {key}={mine!r}, {other.path} has {theirs!r}"
@@ -288,7 +292,8 @@ def curve_frame(df: pd.DataFrame, runs: Sequence[Run]) -> pd.DataFrame:
 
 def training_curves(runs: Sequence[Run], window: int = 10) -> pd.DataFrame:
     """The runs' own training episodes (their ``Monitor`` CSVs): columns group, seed,
-    steps (env steps at the episode's end), reward_per_step (the episode's return over its
+    steps (the run's steps — decisions, with ``decision_every`` — at the episode's end),
+    reward_per_step (the episode's return over its
     length, averaged over ``window`` episodes) — a curve every run has, whatever its
     reward scale or episode ends."""
     rows = []

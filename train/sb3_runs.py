@@ -125,14 +125,21 @@ def deploy_safeguards(run_dir: Path) -> dict[str, Any]:
 
 def check_sb3_run(name: str, env_id: str) -> Path:
     """The run folder of ``sb3:…``, checked: its config and model exist, it was trained
-    on ``env_id`` and its ``deploy.yml`` (if any) is valid; raises :class:`InvalidConfigError`."""
+    on ``env_id``, its network base (if any) is a pure policy there and its ``deploy.yml``
+    (if any) is valid; raises :class:`InvalidConfigError`."""
     run_dir, model_zip, _ = sb3_files(name)
     for path in (run_dir / "config.yml", model_zip):
         if not path.exists():
             raise InvalidConfigError(f"{name}: {path} does not exist")
-    trained_on = run_config(run_dir)["config"]["env_id"]
+    config = run_config(run_dir)["config"]
+    trained_on = config["env_id"]
     if trained_on != env_id:
         raise InvalidConfigError(f"{name} was trained on {trained_on}, not {env_id}")
+    if config.get("base_model") is not None:  # a network base: it must be there, and pure
+        from agents.residual import check_base_model
+        from ptrack_gym.robots import profile_for_env_id
+
+        check_base_model(config["residual"], config["base_model"], profile_for_env_id(env_id).name)
     deploy_safeguards(run_dir)  # a bad deploy.yml is named before anything runs
     return run_dir
 

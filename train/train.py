@@ -59,6 +59,7 @@ from torch import nn
 from agents.hold import check_decision_every
 from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
 from agents.residual import (
+    NETWORK_BASE,
     RESIDUAL_BASES,
     check_base_gains,
     check_base_model,
@@ -362,7 +363,9 @@ def validate(cfg: TrainConfig) -> Resolved:
             own = ("base_gains", "prior_gain_per_rad", "base_model")
             check_safeguards(**{k: v for k, v in residual_kwargs.items() if k not in own})
             check_prior(cfg.residual, cfg.prior_gain_per_rad)
-            check_base_model(cfg.residual, cfg.base_model)
+            check_base_model(cfg.residual, cfg.base_model, profile.name)
+            if cfg.residual == NETWORK_BASE and cfg.base_gains != "default":
+                raise InvalidConfigError("a network base has no gains: keep base_gains 'default'")
             if cfg.base_gains == "tuned":
                 tuned_rates(profile.name, cfg.residual)  # raises naming the tuned files there are
         if cfg.imitate is not None and cfg.imitate_gains == "tuned":
@@ -491,6 +494,14 @@ def imitate(res: Resolved, model: BaseAlgorithm, train_env: VecEnv, run_dir: Pat
     save_checkpoint(model, train_env, run_dir, replay_buffer=False)
 
 
+#: TrainConfig's defaults, for the keys a run written before they existed lacks.
+_FIELD_DEFAULTS: dict[str, Any] = {
+    f.name: f.default
+    for f in dataclasses.fields(TrainConfig)
+    if f.default is not dataclasses.MISSING
+}
+
+
 def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
     path = run_dir / "config.yml"
     if not path.exists():
@@ -503,10 +514,10 @@ def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
                 "gate_deadband_rad", "prior_gain_per_rad", "imitate", "imitate_gains",
                 "imitate_rounds", "imitate_steps", "imitate_round_steps", "imitate_noise",
                 "demo_bc_weight"):  # fmt: skip
-        if key in saved and saved[key] != getattr(cfg, key):
-            raise TrainConfigError(
-                f"--resume: {key}={getattr(cfg, key)!r} differs from the run's {saved[key]!r}"
-            )
+        mine = getattr(cfg, key)
+        theirs = saved.get(key, _FIELD_DEFAULTS.get(key, mine))  # a key the run predates
+        if theirs != mine:
+            raise TrainConfigError(f"--resume: {key}={mine!r} differs from the run's {theirs!r}")
 
 
 # -- environments ----------------------------------------------------------------------
