@@ -329,7 +329,10 @@ def test_bad_prior_is_refused_before_an_env_is_built(base, gain, monkeypatch) ->
 def test_prior_through_the_registered_id_passes_the_checkers() -> None:
     import gymnasium as gym
     from gymnasium.utils.env_checker import check_env
-    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    sb3_checker = pytest.importorskip(
+        "stable_baselines3.common.env_checker", reason="the optional 'train' extra (SB3)"
+    )
 
     from agents.residual import residual_env_id
 
@@ -340,5 +343,5 @@ def test_prior_through_the_registered_id_passes_the_checkers() -> None:
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*different from the unwrapped.*")
         check_env(env, skip_render_check=True)
-    sb3_check_env(env, warn=False)
+    sb3_checker.check_env(env, warn=False)
     env.close()
