@@ -2,10 +2,11 @@
 
 :class:`NetworkController` turns a saved pure SB3 SAC policy (observation → normalized
 torque, no controller inside) back into the controller interface: from the measured (q, q̇)
-and its own clock s it rebuilds the env's observation (``TrackingEnv``, 6n + 2 entries:
-q, q̇, q_r(s), q_r'(s), q_r − q, q_r' − q̇, sin/cos of 2π s / S, clipped to the observation
-space and rounded to float32 as the env does), normalizes it with the run's frozen
-``VecNormalize`` statistics, o' = clip((o − μ)/√(σ² + ε), ±c), and returns
+and its own clock s it builds the env's observation with the env's own function
+(``TrackingTask.observation_numpy``: 6n + 2 entries, q, q̇, q_r(s), q_r'(s), the errors,
+sin/cos of 2π s / S, clipped and rounded to float32), normalizes it with the run's frozen
+``VecNormalize`` statistics (SB3's ``normalize_obs``, o' = clip((o − μ)/√(σ² + ε), ±c)),
+and returns
 
 .. math::
 
@@ -28,8 +29,8 @@ Imports torch and SB3 only in :func:`load_network_controller`.
 
 from __future__ import annotations
 
-import math
 import pickle
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -61,52 +62,33 @@ class NumpyMlp:
         return w @ x + b
 
 
-@dataclass(frozen=True)
-class ObsNormalizer:
-    """VecNormalize's observation map o' = clip((o − μ)/√(σ² + ε), −c, c), float32 out."""
-
-    mean: np.ndarray
-    var: np.ndarray
-    epsilon: float
-    clip: float
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        z = (obs - self.mean) / np.sqrt(self.var + self.epsilon)
-        return np.clip(z, -self.clip, self.clip).astype(np.float32)
-
-
 class NetworkController:
     """A pure policy's deterministic action as a torque controller (see module docstring).
 
     Args:
         actor: μ_θ, the normalized observation → pre-tanh action map.
-        normalizer: the frozen observation statistics (None: the raw observation).
+        normalize: the frozen observation map (a loaded ``VecNormalize``'s ``normalize_obs``;
+            None: the raw observation).
+        observe: the env's observation of (q_meas, q̇_meas, q_r, q_r', s_ref)
+            (``TrackingTask.observation_numpy``).
         path: the reference path q_r(s) the observation describes.
-        obs_high: the observation space's bound (6n + 2 entries); the observation is clipped
-            to ±obs_high as the env clips it.
         torque_limits_nm: τ_max per joint (N·m).
     """
 
     def __init__(
         self,
         actor: NumpyMlp,
-        normalizer: ObsNormalizer | None,
+        normalize: Callable[[np.ndarray], np.ndarray] | None,
+        observe: Callable[..., np.ndarray],
         path: ReferencePath,
-        obs_high: FloatArray,
         torque_limits_nm: FloatArray,
     ) -> None:
         self.n = len(torque_limits_nm)
-        if len(obs_high) != 6 * self.n + 2:
-            raise InvalidConfigError(
-                f"a pure policy's observation has 6n + 2 = {6 * self.n + 2} entries, "
-                f"this env's has {len(obs_high)}"
-            )
         self.actor = actor
-        self.normalizer = normalizer
+        self.normalize = normalize
+        self.observe = observe
         self.path = path
-        self._high = np.asarray(obs_high, dtype=np.float64)
         self.torque_limits_nm = np.asarray(torque_limits_nm, dtype=np.float64)
-        self._obs = np.zeros(6 * self.n + 2)
         self.s = 0.0
         self._last_action = np.zeros(self.n)
 
@@ -117,19 +99,13 @@ class NetworkController:
 
     def observation(self, q: FloatArray, qd: FloatArray) -> np.ndarray:
         """The env's observation (float32) of measured (q, q̇) at the clock's s."""
-        n, o = self.n, self._obs
         q_ref, qd_ref, _ = self.path.evaluate(self.s)
-        o[:n], o[n : 2 * n], o[2 * n : 3 * n], o[3 * n : 4 * n] = q, qd, q_ref, qd_ref
-        o[4 * n : 5 * n] = q_ref - q
-        o[5 * n : 6 * n] = qd_ref - qd
-        omega = 2.0 * math.pi * self.s / self.path.period_s
-        o[6 * n], o[6 * n + 1] = math.sin(omega), math.cos(omega)
-        return np.minimum(np.maximum(o, -self._high), self._high).astype(np.float32)
+        return self.observe(q, qd, q_ref, qd_ref, self.s)
 
     def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
         """τ = τ_max ⊙ tanh(μ_θ(o')) (N·m) at the clock's s; then s += dt."""
         obs = self.observation(q, qd)
-        x = self.normalizer(obs) if self.normalizer is not None else obs
+        x = self.normalize(obs) if self.normalize is not None else obs
         a = np.tanh(self.actor(x)).astype(np.float64)
         self._last_action = a
         self.s += dt
@@ -173,22 +149,6 @@ def _weights(layer: Any) -> tuple[np.ndarray, np.ndarray]:
     w = layer.weight.detach().cpu().numpy().astype(np.float32)
     b = layer.bias.detach().cpu().numpy().astype(np.float32)
     return w, b
-
-
-def load_normalizer(path: Path) -> ObsNormalizer | None:
-    """The observation normalization of a saved ``VecNormalize`` (None when it does not
-    normalize observations)."""
-    with path.open("rb") as f:
-        vec_normalize = pickle.load(f)
-    if not getattr(vec_normalize, "norm_obs", False):
-        return None
-    rms = vec_normalize.obs_rms
-    return ObsNormalizer(
-        np.asarray(rms.mean, dtype=np.float64),
-        np.asarray(rms.var, dtype=np.float64),
-        float(vec_normalize.epsilon),
-        float(vec_normalize.clip_obs),
-    )
 
 
 def check_network_folder(model_dir: str | Path, robot: str | None = None) -> None:
@@ -246,9 +206,10 @@ def load_network_controller(model_dir: str | Path, env: Any) -> NetworkControlle
         model = SAC.load(folder / MODEL_FILE, device="cpu")
     except (ValueError, KeyError, TypeError, AttributeError) as err:  # another algorithm's zip
         raise InvalidConfigError(f"{folder / MODEL_FILE} is not a SAC model: {err}") from None
-    stats = folder / VECNORMALIZE_FILE
-    normalizer = load_normalizer(stats) if stats.is_file() else None
-    obs_high = np.asarray(u.observation_space.high, dtype=np.float64)
+    normalize = None
+    if (folder / VECNORMALIZE_FILE).is_file():
+        with (folder / VECNORMALIZE_FILE).open("rb") as f:
+            normalize = pickle.load(f).normalize_obs  # a VecNormalize without its venv
     shape = model.observation_space.shape
     if shape != u.observation_space.shape:
         raise InvalidConfigError(
@@ -256,5 +217,6 @@ def load_network_controller(model_dir: str | Path, env: Any) -> NetworkControlle
             "a network base must be a pure policy of this robot"
         )
     return NetworkController(
-        numpy_actor(model), normalizer, u.path, obs_high, np.asarray(u.torque_limits_nm)
-    )
+        numpy_actor(model), normalize, u.task.observation_numpy, u.path,
+        np.asarray(u.torque_limits_nm),
+    )  # fmt: skip

@@ -206,11 +206,16 @@ def check_prior(base: str | None, prior_gain_per_rad: float) -> None:
         )
 
 
-def check_base_model(base: str | None, base_model: str | None, robot: str | None = None) -> None:
+def check_base_model(
+    base: str | None, base_model: str | None, robot: str | None = None, base_gains: str = "default"
+) -> None:
     """Raise :class:`InvalidConfigError` unless ``base_model`` (a model folder) is given
     exactly when ``base`` is :data:`NETWORK_BASE` (None: a controller object) and then
-    holds a pure policy of ``robot`` (when given; :func:`agents.network.check_network_folder`)."""
+    holds a pure policy of ``robot`` (when given; :func:`agents.network.check_network_folder`)
+    and ``base_gains`` stays "default" (a network has no gains)."""
     if base == NETWORK_BASE:
+        if base_gains != "default":
+            raise InvalidConfigError("a network base has no gains: keep base_gains 'default'")
         if not isinstance(base_model, str) or not base_model:
             raise InvalidConfigError("a network base needs base_model, a pure policy's folder")
         from agents.network import check_network_folder
@@ -323,12 +328,11 @@ class ResidualWrapper(
         check_base_gains(base_gains)
         if not isinstance(controller, str) and base_gains != "default":
             raise InvalidConfigError("base_gains is for a base given by name, not an object")
-        if controller == NETWORK_BASE and base_gains != "default":
-            raise InvalidConfigError("a network base has no gains: keep base_gains 'default'")
         check_base_model(
             controller if isinstance(controller, str) else None,
             base_model,
             env.unwrapped.robot_profile.name,
+            base_gains,
         )
         self._controller_name = controller if isinstance(controller, str) else None
         self._registered = False  # set by residual_env: the spec is the registered one
@@ -537,7 +541,7 @@ def make_residual_env(
     _check_base(base, scale_fraction, scale_accel_rad_s2)
     check_base_gains(base_gains)
     check_prior(base, prior_gain_per_rad)
-    check_base_model(base, base_model)
+    check_base_model(base, base_model, base_gains=base_gains)
     env = gym.make(env_id, **env_kwargs)
     return _wrap(
         env, base, scale_fraction, include_controller_state,

@@ -59,7 +59,6 @@ from torch import nn
 from agents.hold import check_decision_every
 from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
 from agents.residual import (
-    NETWORK_BASE,
     RESIDUAL_BASES,
     check_base_gains,
     check_base_model,
@@ -363,9 +362,7 @@ def validate(cfg: TrainConfig) -> Resolved:
             own = ("base_gains", "prior_gain_per_rad", "base_model")
             check_safeguards(**{k: v for k, v in residual_kwargs.items() if k not in own})
             check_prior(cfg.residual, cfg.prior_gain_per_rad)
-            check_base_model(cfg.residual, cfg.base_model, profile.name)
-            if cfg.residual == NETWORK_BASE and cfg.base_gains != "default":
-                raise InvalidConfigError("a network base has no gains: keep base_gains 'default'")
+            check_base_model(cfg.residual, cfg.base_model, profile.name, cfg.base_gains)
             if cfg.base_gains == "tuned":
                 tuned_rates(profile.name, cfg.residual)  # raises naming the tuned files there are
         if cfg.imitate is not None and cfg.imitate_gains == "tuned":
