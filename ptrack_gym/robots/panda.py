@@ -76,6 +76,11 @@ FRANKA_ROS_INERTIALS: dict[str, Inertial] = {
     "panda_rightfinger": Inertial(
         0.015, (0.0, 0.0, 0.0), (2.375e-06, 0.0, 0.0, 2.375e-06, 0.0, 7.5e-07)
     ),
+    # Frames, not bodies: pybullet_data gives these massless links a 0.1 kg·m² inertia each,
+    # which rides on joint 7 (M's wrist diagonal 0.24/0.25/0.21 kg·m² at q = 0 instead of
+    # franka_ros' 0.03/0.03/0.006); franka_ros gives them no inertial at all.
+    "panda_link8": Inertial(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+    "panda_grasptarget": Inertial(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
 }  # fmt: skip
 
 
