@@ -20,6 +20,7 @@ import numpy as np
 
 from agents.base import FloatArray
 from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.robots.model import RobotModel
 
 #: A diagonal gain: one number for every joint, or one per joint.
 Gain = float | tuple[float, ...]
@@ -27,6 +28,11 @@ Gain = float | tuple[float, ...]
 #: α: the largest natural frequency of a joint's closed loop a default gain may give,
 #: in rad per control sample (ω_j · dt ≤ α).
 MAX_FREQUENCY_PER_SAMPLE = 0.2
+#: The largest frequency of a stiffness's *coupled* modes, √λ_max(M(q)⁻¹K) on the path, a
+#: default gain may give, in rad per control sample: the per-joint cap above reads the
+#: diagonal of M at home, and the coupled modes of a light wrist or of a folded arm run up
+#: to ~6× faster (:func:`max_mode_frequency`).
+MAX_MODE_ANGLE_PER_SAMPLE = 0.8
 
 
 def check_gain(value: Gain, name: str) -> Gain:
@@ -75,6 +81,17 @@ def cap_stiffness(stiffness: FloatArray, inertia_kgm2: FloatArray, dt_s: float) 
         raise InvalidConfigError(f"the control period must be positive, got {dt_s!r}")
     limit = (MAX_FREQUENCY_PER_SAMPLE / dt_s) ** 2 * np.asarray(inertia_kgm2, dtype=np.float64)
     return np.minimum(np.asarray(stiffness, dtype=np.float64), limit)
+
+
+def max_mode_frequency(model: RobotModel, q_samples: FloatArray, stiffness: FloatArray) -> float:
+    """ω_max = max over the configurations q_k (rows of ``q_samples``, rad) of
+    √λ_max(M(q_k)⁻¹ K), K = diag(``stiffness``) (N·m/rad): the frequency (rad/s) of the
+    fastest mode of the arm held by the springs K alone. It exceeds max_j √(K_j / M_jj) by
+    the inertial coupling (λ_max of K^½ M⁻¹ K^½, a symmetric matrix)."""
+    root = np.sqrt(np.asarray(stiffness, dtype=np.float64))
+    mats = np.array([np.linalg.inv(model.mass_matrix(q)) for q in np.atleast_2d(q_samples)])
+    scaled = root[None, :, None] * mats * root[None, None, :]
+    return float(np.sqrt(max(np.linalg.eigvalsh(scaled)[:, -1].max(), 0.0)))
 
 
 def cap_bandwidth(omega_rad_s: float, dt_s: float) -> float:

@@ -54,6 +54,7 @@ chose the rates is ``docs/passivity_gain_study.md``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -62,10 +63,15 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from agents.base import ControlContext, FeatureBlock, FloatArray
-from agents.gains import cap_stiffness, rates
+from agents.gains import (
+    MAX_MODE_ANGLE_PER_SAMPLE,
+    cap_stiffness,
+    max_mode_frequency,
+    rates,
+)
 from agents.passivity_kernel import OUT, law_step, law_tables
 from agents.passivity_tables import PassivityTables, passivity_tables
-from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.errors import ControlRateError, InvalidConfigError
 from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
 
 NAME = "passivity"
@@ -80,6 +86,7 @@ DEFAULT_RATES: dict[str, Any] = {
     "sync_rate": 0.0,
     "sync_ratio": 0.5,
     "saturation_aware": True,
+    "zoh_damping": 1.0,
 }
 #: The rates one gain scale multiplies (``python -m train.fronts``): the joint and the
 #: phase spring bandwidths (the damping rates ρ, λ stay).
@@ -94,9 +101,13 @@ TUNABLE = {
 }
 #: The paper's law exactly (the ``passivity_paper`` controller): no re-synchronisation of σ,
 #: no saturation-aware reference torque — whatever a robot's defaults or tuned rates say.
-PAPER_LAW = {"sync_rate": 0.0, "saturation_aware": False}
+PAPER_LAW = {"sync_rate": 0.0, "saturation_aware": False, "zoh_damping": 0.0}
 
 _PUMPS = ("metric", "paper")
+#: How ``step`` integrates (s, ṡ, σ) (see :class:`PassivityController`).
+INTEGRATORS = ("implicit", "symplectic")
+#: Which torque ``step`` holds over the control period (see :class:`PassivityController`).
+HOLDS = ("midpoint", "sample")
 _STARTS = ("nearest", "reference")
 
 
@@ -106,6 +117,11 @@ class PassivityGains:
 
     Attributes:
         K: spring stiffness of φ (N·m/rad): a scalar (K·I) or one value per joint (diagonal).
+        D: damping (N·m·s/rad) of a damper in parallel with φ's spring, acting on the rate
+            of its stretch ė = q̇ − q_r'(s) ṡ: a scalar or one value per joint (diagonal),
+            each ≥ 0. NOT in the paper; 0 (the dataclass default) is the paper's law. The
+            default gains set D = c K dt (``zoh_damping`` c): twice the energy a zero-order
+            hold of period dt feeds into the spring (see :meth:`PassivityController.law`).
         kappa: κ > 0, stiffness of the phase spring ψ = ½κ s̃² (J/s²).
         R: R > 0, damping of the phase-rate error s̃̇ (J·s/s² = J/s).
         k_pump: k ≥ 0, energy-pump gain (1/(J·s) for "metric", N·m·s/(rad·J) for "paper").
@@ -129,6 +145,7 @@ class PassivityGains:
     """
 
     K: float | tuple[float, ...] = 100.0
+    D: float | tuple[float, ...] = 0.0
     kappa: float = 10.0
     R: float = 0.2
     k_pump: float = 20.0
@@ -143,6 +160,11 @@ class PassivityGains:
         if k.ndim != 1 or not np.all(np.isfinite(k)) or np.any(k <= 0):
             raise ValueError(
                 f"K must be a positive scalar or positive per-joint values, got {self.K!r}"
+            )
+        d = np.atleast_1d(np.asarray(self.D, dtype=np.float64))
+        if d.ndim != 1 or not np.all(np.isfinite(d)) or np.any(d < 0):
+            raise ValueError(
+                f"D must be a scalar or per-joint values, each finite and >= 0, got {self.D!r}"
             )
         for name in ("kappa", "R"):
             v = getattr(self, name)
@@ -182,11 +204,13 @@ class PassivityGains:
         sync_ratio: float = 0.5,
         dt_s: float | None = None,
         torque_limits_nm: tuple[float, ...] | None = None,
+        zoh_damping: float = 0.0,
     ) -> PassivityGains:
         """Absolute gains from rates (the module docstring's formulas): K_j = ω² ·
         max(M_jj, m_floor), capped by :func:`agents.gains.cap_stiffness` when the control
-        period ``dt_s`` (s) is given; κ = ω_s² M̄_r, R = ρ M̄_r, k_pump = λ / M̄_r;
-        ``torque_limits_nm`` makes the law saturation-aware.
+        period ``dt_s`` (s) is given; D_j = c K_j dt with c = ``zoh_damping`` (0 without
+        ``dt_s``); κ = ω_s² M̄_r, R = ρ M̄_r, k_pump = λ / M̄_r; ``torque_limits_nm`` makes
+        the law saturation-aware.
 
         Args:
             inertia_kgm2: the joint inertias that scale K, e.g. diag M(q_home) (kg·m²).
@@ -195,11 +219,16 @@ class PassivityGains:
         m = np.asarray(inertia_kgm2, dtype=np.float64)
         if not (np.isfinite(mean_m_r_j) and mean_m_r_j > 0):
             raise InvalidConfigError(f"mean_m_r_j must be positive, got {mean_m_r_j!r}")
+        if not (np.isfinite(zoh_damping) and zoh_damping >= 0):
+            raise InvalidConfigError(f"zoh_damping must be >= 0, got {zoh_damping!r}")
         stiffness = omega**2 * np.maximum(m, m_floor)
+        damping = np.zeros_like(stiffness)
         if dt_s is not None:
             stiffness = cap_stiffness(stiffness, m, dt_s)
+            damping = zoh_damping * stiffness * dt_s
         return cls(
             K=tuple(float(k) for k in stiffness),
+            D=tuple(float(d) for d in damping),
             kappa=float(omega_s**2 * mean_m_r_j),
             R=float(rho * mean_m_r_j),
             k_pump=float(lam / mean_m_r_j),
@@ -210,13 +239,22 @@ class PassivityGains:
         )
 
     def stiffness(self, n: int) -> FloatArray:
-        """The diagonal of K as an (n,) array."""
-        k = np.atleast_1d(np.asarray(self.K, dtype=np.float64))
-        if k.shape == (1,):
-            return np.full(n, k[0])
-        if k.shape != (n,):
-            raise ValueError(f"K has {k.shape[0]} entries, the robot has {n} joints")
-        return k.copy()
+        """The diagonal of K as an (n,) array (N·m/rad)."""
+        return _diagonal(self.K, n, "K")
+
+    def damping(self, n: int) -> FloatArray:
+        """The diagonal of D as an (n,) array (N·m·s/rad)."""
+        return _diagonal(self.D, n, "D")
+
+
+def _diagonal(value: float | tuple[float, ...], n: int, name: str) -> FloatArray:
+    """A scalar or per-joint gain as its (n,) diagonal."""
+    k = np.atleast_1d(np.asarray(value, dtype=np.float64))
+    if k.shape == (1,):
+        return np.full(n, k[0])
+    if k.shape != (n,):
+        raise ValueError(f"{name} has {k.shape[0]} entries, the robot has {n} joints")
+    return k.copy()
 
 
 class LawOutput(NamedTuple):
@@ -231,7 +269,7 @@ class LawOutput(NamedTuple):
     phi: float  # φ (J)
     psi: float  # ψ (J)
     pump_power: float  # q̇ᵀf + ṡ f_r, power the pump injects (W)
-    dissipation: float  # R s̃̇², the passive dissipation rate (W)
+    dissipation: float  # R s̃̇² + ėᵀDė, the passive dissipation rate (W)
     sync_power: float  # (W_r'(σ) − κ s̃ − R s̃̇)·u: what the re-synchronisation u adds to Ė (W)
     s_tilde: float  # s̃ = s − σ (s)
     s_tilde_dot: float  # s̃̇ = ṡ − σ̇ (1)
@@ -240,6 +278,7 @@ class LawOutput(NamedTuple):
     pump_torque: FloatArray  # f, (n,) N·m
     path_error: float  # |q − q_r(s)| (rad)
     r0_scale: float = 1.0  # α, the saturation-aware scale of τ_r⁰ (1: the paper's law)
+    hold_correction: FloatArray | None = None  # δ, τ − τ(sample) of the midpoint hold, (n,) N·m
 
 
 @dataclass
@@ -277,10 +316,47 @@ class PassivityController:
             env's time-indexed phase s_ref.
         sd0: ṡ₀ at reset; None (default) sets ṡ₀ = σ̇(q₀, q̇₀, s₀), so s̃̇₀ = 0: 0 from
             rest, 1 on the path at nominal speed. σ₀ = s₀ always.
+        integrator, hold: the discretization (below).
+        dt_s: the control period (s) to check now (:meth:`check_rate`); ``step`` checks
+            every new period it is given.
 
-    Integration (``step``): with (q, q̇) held over the control period dt, symplectic
-    Euler — ṡ ← ṡ + dt·s̈, s ← s + dt·ṡ(new), σ ← σ + dt·σ̇ — first order, like the
-    plant's own integrator in PyBullet.
+    Raises:
+        ControlRateError: ``dt_s`` exceeds :meth:`max_period_s`.
+
+    Integration (``step``, ``integrator``): the virtual system (s, ṡ, σ) over one control
+    period dt, given the measured (q, q̇) at its start.
+
+    * ``"implicit"`` (default): semi-implicit Euler, implicit in the virtual system's stiff
+      linear part. With a = (κ + q_r'ᵀK q_r')/M_r(s) (the springs ψ and φ acting on s),
+      c = (R + q_r'ᵀD q_r')/M_r(s) (the dampers acting on ṡ) and b = (q_r'ᵀK q̇ + κ σ̇)/M_r(s)
+      (how fast those springs' other ends, q and σ, move),
+
+      .. math::
+
+          \\Delta\\dot s = \\frac{dt\\,(\\ddot s + dt\\,(b - a \\dot s))}{1 + c\\,dt + a\\,dt^2},
+          \\quad \\dot s \\leftarrow \\dot s + \\Delta\\dot s,\\quad s \\leftarrow s + dt\\,\\dot s,
+          \\quad \\sigma \\leftarrow \\sigma + dt\\,\\dot\\sigma
+
+      — backward Euler of s̈ linearised in (s, ṡ) at the step's start, with q and σ moving
+      at q̇ and σ̇ over the step. First order, like the explicit scheme it replaces; stable
+      for every dt where that part is stiff: the explicit scheme needs
+      a dt² + 2c dt < 4, which fails at the slow stretches of a path (small M_r(s)) at
+      250 Hz (``docs/control_rates.md``). On the reference Δṡ = 0 exactly (s̈ = 0 and b = a).
+    * ``"symplectic"``: the earlier scheme, symplectic Euler — ṡ ← ṡ + dt·s̈,
+      s ← s + dt·ṡ(new), σ ← σ + dt·σ̇ (kept to show what the implicit one fixes).
+
+    The torque held over the period (``hold``):
+
+    * ``"midpoint"`` (default): the law's torque at the sample plus δ
+      (:meth:`hold_correction`), the change of its velocity feedback B = ∂τ/∂q̇ (of the
+      reference torque τ_r⁰, the phase damping R and the pump) between the sample and the
+      period's midpoint, the velocity there predicted with the model and the held torque
+      itself (linearly implicit). A zero-order hold turns the law's velocity feedback into
+      an explicit Euler step: the work-free τ_r⁰ = G(q̇) q̇ (G skew) is a gyroscopic torque
+      that turns the arm's velocity at up to ~240 rad/s on a path's slow stretches, and an
+      explicit step grows such a rotation by √(1 + (ω dt)²) per step; the midpoint keeps
+      it (``docs/control_rates.md``). δ = O(dt), and 0 at rest (q̇ = 0).
+    * ``"sample"``: the law's torque at the sample, held (the earlier scheme).
     """
 
     def __init__(
@@ -290,16 +366,25 @@ class PassivityController:
         gains: PassivityGains | None = None,
         start: str = "nearest",
         sd0: float | None = None,
+        integrator: str = "implicit",
+        hold: str = "midpoint",
+        dt_s: float | None = None,
     ) -> None:
         if tables.n != model.n:
             raise ValueError(f"tables have {tables.n} joints, model has {model.n}")
         if start not in _STARTS:
             raise ValueError(f"start must be one of {_STARTS}, got {start!r}")
+        if integrator not in INTEGRATORS:
+            raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+        if hold not in HOLDS:
+            raise ValueError(f"hold must be one of {HOLDS}, got {hold!r}")
+        self.integrator, self.hold = integrator, hold
         self.model = model
         self.tables = tables
         self.gains = gains or PassivityGains()
         self.n = model.n
         self.k_diag = self.gains.stiffness(self.n)
+        self.d_diag = self.gains.damping(self.n)
         self.start = start
         self.sd0 = sd0
         self._state = np.zeros(3)  # (s, ṡ, σ), integrated in place by the compiled law
@@ -312,11 +397,56 @@ class PassivityController:
         gains_vector = np.array(
             [g.kappa, g.R, g.k_pump, 1.0 if g.pump == "metric" else 0.0, g.speed_eps,
              g.sync_rate, g.sync_ratio, 0.0 if g.torque_limits_nm is None else 1.0,
-             *self.k_diag, *box]
+             1.0 if integrator == "implicit" else 0.0, 1.0 if hold == "midpoint" else 0.0,
+             *self.k_diag, *self.d_diag, *box]
         )  # fmt: skip
         self._tables = law_tables(gains_vector, tables.knots, tables.coefficients, tables.period_s)
-        self._out = np.zeros(len(OUT) + 3 * self.n)
+        self._out = np.zeros(len(OUT) + 4 * self.n)
+        self._zeros = np.zeros(self.n)
+        self.mode_frequency_rad_s = max_mode_frequency(model, tables.q_samples(), self.k_diag)
+        """ω_max, the fastest mode of φ's springs on the path (:func:`max_mode_frequency`)."""
+        self._checked_dt: float | None = None
+        if dt_s is not None:
+            self.check_rate(dt_s)
         self._last_tau: FloatArray | None = None
+
+    def max_period_s(self) -> float:
+        """The longest control period (s) this controller serves on its path with its gains:
+        the largest dt with ω_max dt ≤ 1/√max(c, ½), ω_max the fastest mode of φ's springs
+        on the path (:attr:`mode_frequency_rad_s`) and c = min_j D_j / (K_j dt) the damper's
+        share of the zero-order hold's energy (``PassivityGains.D``).
+
+        Why (``docs/control_rates.md``): a spring mode of frequency ω held over dt, with the
+        damper D = cK dt, has the per-step map of a continuous plant under a zero-order hold,
+        stable iff c > ½ and c (ω dt)² < 2 (ω dt < √2 at the default c = 1; measured: the
+        first random paths fail at ω dt = 1.43); without a damper (c ≤ ½, the paper's law)
+        nothing damps the mode and the sampled spring alone diverges at ω dt = 2. The limit
+        stated here keeps a factor √2 below either. The other loops need no limit of their
+        own: the virtual system is integrated implicitly and the velocity feedback held at its
+        midpoint (measured stable with κ and R raised 128× at 250 Hz)."""
+        omega = self.mode_frequency_rad_s
+        if omega <= 0.0:
+            return float("inf")
+        d = float(np.min(self.d_diag / self.k_diag))  # D_j / K_j (s); c = d / dt
+        short = 1.0 / (omega * omega * d) if d > 0.0 else float("inf")  # where c ≥ ½
+        return short if short < 2.0 * d else math.sqrt(2.0) / omega
+
+    def check_rate(self, dt_s: float) -> None:
+        """Raise :class:`~ptrack_gym.errors.ControlRateError` if ``dt_s`` exceeds
+        :meth:`max_period_s`."""
+        if not (math.isfinite(dt_s) and dt_s > 0.0):
+            raise InvalidConfigError(f"the control period must be positive, got {dt_s!r}")
+        limit = self.max_period_s()
+        if dt_s > limit * (1.0 + 1e-12):
+            raise ControlRateError(
+                f"the passivity controller cannot serve a control period of "
+                f"{dt_s * 1e3:.4g} ms ({1.0 / dt_s:.4g} Hz) on this path with these gains: its "
+                f"limit is {limit * 1e3:.4g} ms ({1.0 / limit:.4g} Hz). The fastest mode of "
+                f"its springs K on the path turns at {self.mode_frequency_rad_s:.4g} rad/s, "
+                f"{self.mode_frequency_rad_s * dt_s:.3g} rad per period; lower K (the gain "
+                f"rate 'omega') or raise the control rate (docs/control_rates.md)"
+            )
+        self._checked_dt = dt_s
 
     @property
     def state(self) -> PassivityState:
@@ -337,11 +467,14 @@ class PassivityController:
             tau_sync=out[k : k + n].copy(),
             tau_r0=out[k + n : k + 2 * n].copy(),
             pump_torque=out[k + 2 * n : k + 3 * n].copy(),
+            hold_correction=out[k + 3 * n : k + 4 * n].copy(),
             **scalars,
         )
 
     # -- the law (pure) --------------------------------------------------------------
-    def law(self, q: FloatArray, qd: FloatArray, s: float, sd: float, sigma: float) -> LawOutput:
+    def law(
+        self, q: FloatArray, qd: FloatArray, s: float, sd: float, sigma: float, dt: float = 0.0
+    ) -> LawOutput:
         """Evaluate the control law at (q, q̇, s, ṡ, σ); changes no state.
 
         Phase re-synchronisation (``gains.sync_rate`` γ > 0; not in the paper):
@@ -410,30 +543,39 @@ class PassivityController:
         s_t, s_td = s - sigma, sd - sigma_dot
         err = q - ref.q  # (n,)
         dphi_dq = self.k_diag * err  # ∂φ/∂q; ∂φ/∂q_r = −∂φ/∂q
+        damp = self.d_diag * (qd - ref.qd * sd)  # D ė, ė = q̇ − q_r'(s) ṡ (N·m)
+        spring = dphi_dq + damp  # the spring-damper's pull on the arm, negated
         phi = 0.5 * float(err @ dphi_dq)
         psi = 0.5 * g.kappa * s_t**2
         tau_r0 = (speed2 / m_r) * ref.tau - (float(qd @ ref.tau) / m_r) * tau_qd
         mu_j = ref_sigma.w_r_d - g.kappa * s_t - g.R * s_td  # μ √M_r(s) (J)
         mu = mu_j / np.sqrt(m_r)
-        e_c = -g.kappa * s_t - g.R * s_td + float(dphi_dq @ ref.qd)
+        e_c = -g.kappa * s_t - g.R * s_td + float(spring @ ref.qd)
         h_plus_w = 0.5 * speed2 + self.model.potential(q) + ref_sigma.w_r
         h_r = 0.5 * m_r * (sd * sd - 1.0)
         direction = tau_qd if g.pump == "metric" else qd
         f = -g.k_pump * h_plus_w * direction
-        rest = f - dphi_dq  # τ − τ_r⁰: everything that does work
+        rest = f - spring  # τ − τ_r⁰: everything that does work
         if speed > g.speed_eps:
             rest = rest - (mu / speed) * tau_qd
         alpha = 1.0
         if g.torque_limits_nm is not None:  # saturation-aware: α τ_r⁰ into the box
             alpha = fit_scale(rest, tau_r0, np.asarray(g.torque_limits_nm))
             tau_r0 = alpha * tau_r0
-        tau_sync = tau_r0 - dphi_dq
+        tau_sync = tau_r0 - spring
         if speed > g.speed_eps:
             tau_sync = tau_sync - (mu / speed) * tau_qd
         f_r = -g.k_pump * h_r * sd
         s_dd = (-0.5 * ref.m_r_d * (sd * sd - 1.0) + e_c + f_r) / m_r
+        tau = tau_sync + f
+        hold = np.zeros(self.n)
+        if dt > 0.0 and self.hold == "midpoint":
+            hold = self.hold_correction(
+                q, qd, mass, tau, ref.tau, ref.m_r, ref_sigma.w_r_d, alpha, dt
+            )
+            tau = tau + hold
         return LawOutput(
-            tau=tau_sync + f,
+            tau=tau,
             s_dd=float(s_dd),
             sigma_dot=float(sigma_dot),
             energy=float(h_plus_w + h_r + phi + psi),
@@ -442,7 +584,7 @@ class PassivityController:
             phi=phi,
             psi=float(psi),
             pump_power=float(qd @ f + sd * f_r),
-            dissipation=float(g.R * s_td**2),
+            dissipation=float(g.R * s_td**2 + damp @ (qd - ref.qd * sd)),
             sync_power=float(mu_j * sync),
             s_tilde=float(s_t),
             s_tilde_dot=float(s_td),
@@ -451,7 +593,54 @@ class PassivityController:
             pump_torque=f,
             path_error=float(np.linalg.norm(err)),
             r0_scale=float(alpha),
+            hold_correction=hold,
         )
+
+    def hold_correction(
+        self,
+        q: FloatArray,
+        qd: FloatArray,
+        mass: FloatArray,
+        tau: FloatArray,
+        tau_r: FloatArray,
+        m_r: float,
+        w_r_d: float,
+        alpha: float,
+        dt: float,
+    ) -> FloatArray:
+        """δ (N·m, (n,)): what the midpoint hold adds to the law's torque τ at the sample
+        (see the class docstring), with B the law's velocity feedback of the reference
+        torque, the phase damping and the pump,
+
+        .. math::
+
+            B = \\frac{\\alpha (2\\tau_r p^T - p\\,\\tau_r^T)}{M_r}
+                + \\frac{W_r'(\\sigma) - R}{M_r^2}\\, p p^T - k\\, d\\, p^T,
+            \\quad p = M(q)\\dot q,\\ d = p \\text{ (metric) or } \\dot q \\text{ (paper)},
+
+            y = (M - \\tfrac{dt}{2} B)^{-1} (\\tau - h(q, \\dot q)),
+            \\quad \\delta = \\tfrac{dt}{2} B y,
+
+        h = C(q, q̇)q̇ + g(q) from the model; y is the arm's acceleration over the period
+        predicted by the model. With the saturation-aware box, δ is scaled (by
+        :func:`fit_scale`) so that it never pushes a joint past max(τ_max, |τ|); where
+        M − (dt/2)B is singular, δ = 0."""
+        g = self.gains
+        p = mass @ qd  # (n,)
+        direction = p if g.pump == "metric" else qd
+        b = alpha * (2.0 * np.outer(tau_r, p) - np.outer(p, tau_r)) / m_r
+        b = b + (w_r_d - g.R) / m_r**2 * np.outer(p, p) - g.k_pump * np.outer(direction, p)
+        bias = self.model.inverse_dynamics(q, qd, np.zeros(self.n))
+        try:
+            y = np.linalg.solve(mass - 0.5 * dt * b, tau - bias)
+        except np.linalg.LinAlgError:
+            return np.zeros(self.n)
+        delta = 0.5 * dt * (b @ y)
+        if not np.all(np.isfinite(delta)):
+            return np.zeros(self.n)
+        if g.torque_limits_nm is not None:
+            delta = fit_scale(tau, delta, np.asarray(g.torque_limits_nm)) * delta
+        return delta
 
     # -- the Controller protocol -------------------------------------------------------
     def reset(
@@ -486,23 +675,37 @@ class PassivityController:
         """τ (N·m) for the measured (q, q̇); then integrate (s, ṡ, σ) over ``dt`` (s).
 
         The compiled twin of :meth:`step_numpy` (:func:`agents.passivity_kernel.law_step`)."""
+        if dt != self._checked_dt and dt > 0.0:
+            self.check_rate(dt)
         q = np.asarray(q, dtype=np.float64)
+        qd = np.asarray(qd, dtype=np.float64)
         tau = np.empty(self.n)
+        bias = self._zeros  # C(q, q̇)q̇ + g(q), read by the midpoint hold only
+        if self.hold == "midpoint" and dt > 0.0:
+            bias = self.model.inverse_dynamics(q, qd, self._zeros)
         law_step(
-            q, np.asarray(qd, dtype=np.float64), self.model.mass_matrix(q),
-            self.model.potential(q), dt, self._state, *self._tables, tau, self._out,
+            q, qd, self.model.mass_matrix(q), self.model.potential(q), bias, dt,
+            self._state, *self._tables, tau, self._out,
         )  # fmt: skip
         self._last_tau = tau
         return tau
 
     def step_numpy(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
         """The readable reference of :meth:`step`: :meth:`law` at the current state, then
-        symplectic Euler — ṡ ← ṡ + dt·s̈, s ← s + dt·ṡ(new), σ ← σ + dt·σ̇."""
+        one step of the class docstring's ``integrator``."""
+        if dt != self._checked_dt and dt > 0.0:
+            self.check_rate(dt)
         st = self.state
-        out = self.law(
-            np.asarray(q, dtype=np.float64), np.asarray(qd, dtype=np.float64), st.s, st.sd, st.sigma
-        )
-        sd_new = st.sd + dt * out.s_dd
+        q, qd = np.asarray(q, dtype=np.float64), np.asarray(qd, dtype=np.float64)
+        out = self.law(q, qd, st.s, st.sd, st.sigma, dt)
+        sd_dot = dt * out.s_dd
+        if self.integrator == "implicit" and dt > 0.0:
+            g, ref = self.gains, self.tables(st.s)
+            a = (g.kappa + float(ref.qd @ (self.k_diag * ref.qd))) / ref.m_r
+            c = (g.R + float(ref.qd @ (self.d_diag * ref.qd))) / ref.m_r
+            b = (float(ref.qd @ (self.k_diag * qd)) + g.kappa * out.sigma_dot) / ref.m_r
+            sd_dot = dt * (out.s_dd + dt * (b - a * st.sd)) / (1.0 + c * dt + a * dt * dt)
+        sd_new = st.sd + sd_dot
         self._state[:] = (st.s + dt * sd_new, sd_new, st.sigma + dt * out.sigma_dot)
         return out.tau
 
@@ -573,10 +776,34 @@ def gains_from_rates(
     aware = bool(r.pop("saturation_aware"))
     tables = tables or passivity_tables(ctx.path, ctx.model)
     inertia = home_inertia_kgm2(ctx.model, ctx.profile)
-    return PassivityGains.from_rates(
+    gains = PassivityGains.from_rates(
         inertia, tables.mean_m_r, dt_s=ctx.dt_s,
         torque_limits_nm=ctx.profile.torque_limits_nm if aware else None, **r,
     )  # fmt: skip
+    return cap_modes(gains, ctx.model, tables, ctx.dt_s)
+
+
+def cap_modes(
+    gains: PassivityGains, model: RobotModel, tables: PassivityTables, dt_s: float
+) -> PassivityGains:
+    """``gains`` with K and D scaled by one factor where needed so that the fastest mode of
+    φ's springs on the path turns at most θ = :data:`~agents.gains.MAX_MODE_ANGLE_PER_SAMPLE`
+    · min(1, 1/√max(c, ½)) rad per control period (:func:`~agents.gains.max_mode_frequency`;
+    c = min_j D_j/(K_j dt)): 80% of the limit of :meth:`PassivityController.max_period_s`.
+    The per-joint cap reads M's diagonal at home only."""
+    n = model.n
+    stiffness = gains.stiffness(n)
+    c = float(np.min(gains.damping(n) / stiffness)) / dt_s
+    angle = MAX_MODE_ANGLE_PER_SAMPLE * min(1.0, 1.0 / math.sqrt(max(c, 0.5)))
+    omega = max_mode_frequency(model, tables.q_samples(), stiffness)
+    if omega * dt_s <= angle:
+        return gains
+    scale = (angle / (omega * dt_s)) ** 2
+    return dataclasses.replace(
+        gains,
+        K=tuple(float(k) for k in scale * stiffness),
+        D=tuple(float(d) for d in scale * gains.damping(n)),
+    )
 
 
 def default_gains(ctx: ControlContext, tables: PassivityTables | None = None) -> PassivityGains:
@@ -593,13 +820,16 @@ def build(
 
     Raises:
         InvalidPathError: the path is stationary for the law (M_r below β somewhere).
+        ControlRateError: the context's control period exceeds what the gains serve on the
+            path (:meth:`PassivityController.max_period_s`); default and rate-given gains
+            are capped (:func:`cap_modes`) and never are.
     """
     tables = passivity_tables(ctx.path, ctx.model)
     if gains is None:
         gains = default_gains(ctx, tables)
     elif isinstance(gains, Mapping):
         gains = gains_from_rates(ctx, gains, tables)
-    return PassivityController(ctx.model, tables, gains)
+    return PassivityController(ctx.model, tables, gains, dt_s=ctx.dt_s)
 
 
 def build_paper(
@@ -607,7 +837,9 @@ def build_paper(
 ) -> PassivityController:
     """The paper's law exactly (:data:`PAPER_LAW`) with the robot's (or the given) rates."""
     if isinstance(gains, PassivityGains):
-        if gains.sync_rate or gains.torque_limits_nm is not None:
-            raise InvalidConfigError("the paper's law has no sync_rate and no torque_limits_nm")
+        if gains.sync_rate or gains.torque_limits_nm is not None or np.any(np.asarray(gains.D)):
+            raise InvalidConfigError(
+                "the paper's law has no sync_rate, no torque_limits_nm and no damper D"
+            )
         return build(ctx, gains)
     return build(ctx, {**dict(gains or {}), **PAPER_LAW})

@@ -16,24 +16,26 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ptrack_gym.kernels import kernel, pack, view1, view3
+from ptrack_gym.kernels.linalg import solve_small
 from ptrack_gym.kernels.path import cubic_interval
 
 FloatArray = NDArray[np.float64]
 
-#: The scalar outputs, in ``out``'s order (then τ_sync, τ_r⁰, f: n entries each).
+#: The scalar outputs, in ``out``'s order (then τ_sync, τ_r⁰, f and the hold correction δ:
+#: n entries each).
 OUT = ("s_dd", "sigma_dot", "energy", "h_plus_w", "h_r", "phi", "psi", "pump_power",
        "dissipation", "sync_power", "s_tilde", "s_tilde_dot", "path_error",
        "r0_scale")  # fmt: skip
-#: Entries of the gains vector before the stiffness diagonal K and the torque box (n each).
+#: Entries of the gains vector before the diagonals of K and D and the torque box (n each).
 GAINS = ("kappa", "R", "k_pump", "pump_metric", "speed_eps", "sync_rate", "sync_ratio",
-         "saturation_aware")  # fmt: skip
+         "saturation_aware", "implicit", "midpoint")  # fmt: skip
 
 
 def law_tables(
     gains: FloatArray, knots: FloatArray, coeffs: FloatArray, period_s: float
 ) -> tuple[FloatArray, NDArray[np.int64]]:
     """The constant inputs of :func:`law_step`, packed: the gains vector (:data:`GAINS`, then
-    K and the torque box τ_max), the tables' knots (N + 1,) and spline coefficients
+    K, D and the torque box τ_max), the tables' knots (N + 1,) and spline coefficients
     (4, N, 3n + 4), and the period."""
     return pack([gains, knots, coeffs, np.array([period_s])])
 
@@ -57,6 +59,7 @@ def law_step(
     qd: FloatArray,
     mass: FloatArray,
     potential: float,
+    bias: FloatArray,
     dt: float,
     state: FloatArray,
     flat: FloatArray,
@@ -65,16 +68,21 @@ def law_step(
     out: FloatArray,
 ) -> None:
     """τ into ``tau`` and the law's outputs into ``out`` at (q, q̇) with M(q) = ``mass``,
-    U(q) = ``potential`` and the state ``state`` = (s, ṡ, σ); then ṡ ← ṡ + dt s̈,
-    s ← s + dt ṡ, σ ← σ + dt σ̇ in ``state`` (dt = 0: evaluate only)."""
+    U(q) = ``potential``, C(q, q̇)q̇ + g(q) = ``bias`` (read only with the ``midpoint`` flag
+    and dt > 0: τ then includes the hold correction δ of
+    :meth:`~agents.passivity.PassivityController.hold_correction`) and the state
+    ``state`` = (s, ṡ, σ); then one step of ``dt`` in
+    ``state``: ṡ ← ṡ + Δṡ, s ← s + dt ṡ, σ ← σ + dt σ̇, Δṡ the semi-implicit update of
+    :meth:`~agents.passivity.PassivityController.step_numpy` (Δṡ = dt s̈ with the
+    ``implicit`` flag off; dt = 0: evaluate only)."""
     n = q.shape[0]
     gains = view1(flat, layout, 0)
     knots, coeffs = view1(flat, layout, 1), view3(flat, layout, 2)
     period = view1(flat, layout, 3)[0]
     kappa, big_r, k_pump = gains[0], gains[1], gains[2]
     metric, speed_eps, sync_rate, sync_ratio = gains[3] > 0.5, gains[4], gains[5], gains[6]
-    saturation_aware = gains[7] > 0.5
-    k0, b0 = len(GAINS), len(GAINS) + n  # offsets of K and of the torque box
+    saturation_aware, implicit, midpoint = gains[7] > 0.5, gains[8] > 0.5, gains[9] > 0.5
+    k0, d0, b0 = len(GAINS), len(GAINS) + n, len(GAINS) + 2 * n  # offsets of K, D, the box
     s, sd, sigma = state[0], state[1], state[2]
     m = 3 * n + 4
     ref = np.empty(m)
@@ -109,13 +117,16 @@ def law_step(
             sync = w * sync_rate * (num / den)
             sigma_dot = sigma_dot + sync
     s_t, s_td = s - sigma, sd - sigma_dot
-    phi, err2, dphi_qr, qd_tau_r = 0.0, 0.0, 0.0, 0.0
+    phi, err2, dphi_qr, qd_tau_r, damper = 0.0, 0.0, 0.0, 0.0, 0.0
     for i in range(n):
         err = q[i] - ref[i]
         dphi = gains[k0 + i] * err
+        edot = qd[i] - ref[n + i] * sd  # ė = q̇ − q_r'(s) ṡ
+        damp = gains[d0 + i] * edot
         phi += err * dphi
         err2 += err * err
-        dphi_qr += dphi * ref[n + i]
+        dphi_qr += (dphi + damp) * ref[n + i]
+        damper += damp * edot
         qd_tau_r += qd[i] * ref[2 * n + i]
     phi *= 0.5
     psi = 0.5 * kappa * s_t**2
@@ -133,7 +144,7 @@ def law_step(
     for i in range(n):
         tau_r0 = (speed2 / m_r) * ref[2 * n + i] - (qd_tau_r / m_r) * tau_qd[i]
         f = -k_pump * h_plus_w * (tau_qd[i] if metric else qd[i])
-        sync_rest = -gains[k0 + i] * (q[i] - ref[i])
+        sync_rest = -gains[k0 + i] * (q[i] - ref[i]) - gains[d0 + i] * (qd[i] - ref[n + i] * sd)
         if speed > speed_eps:
             sync_rest = sync_rest - (mu / speed) * tau_qd[i]
         pump_power += qd[i] * f
@@ -142,25 +153,22 @@ def law_step(
         out[off + 2 * n + i] = f
     alpha = 1.0
     if saturation_aware:  # τ = τ_rest + α τ_r⁰ inside max(τ_max, |τ_rest|) per joint
-        fits = True
-        for i in range(n):
-            rest, r0 = out[off + i] + out[off + 2 * n + i], out[off + n + i]
-            if abs(rest + r0) > max(gains[b0 + i], abs(rest)):
-                fits = False
-        if not fits:
-            for i in range(n):
-                rest, r0 = out[off + i] + out[off + 2 * n + i], out[off + n + i]
-                if r0 != 0.0:
-                    bound = max(gains[b0 + i], abs(rest))
-                    sign = 1.0 if r0 > 0.0 else -1.0
-                    alpha = min(alpha, (bound - sign * rest) / abs(r0))
-            alpha = max(alpha, 0.0)
+        rest = out[off : off + n] + out[off + 2 * n : off + 3 * n]
+        alpha = fit_scale(rest, out[off + n : off + 2 * n], gains[b0 : b0 + n])
     for i in range(n):
         tau_r0 = alpha * out[off + n + i]
         tau_sync = tau_r0 + out[off + i]
         tau[i] = tau_sync + out[off + 2 * n + i]
         out[off + i] = tau_sync
         out[off + n + i] = tau_r0
+        out[off + 3 * n + i] = 0.0
+    if midpoint and dt > 0.0:
+        hold_correction(
+            mass, tau_qd, qd, tau, bias, ref, m_r, w_r_d_sigma, alpha, big_r, k_pump, metric,
+            saturation_aware, gains[b0 : b0 + n], dt, out[off + 3 * n : off + 4 * n],
+        )  # fmt: skip
+        for i in range(n):
+            tau[i] += out[off + 3 * n + i]
     out[0] = s_dd
     out[1] = sigma_dot
     out[2] = h_plus_w + h_r + phi + psi
@@ -169,14 +177,103 @@ def law_step(
     out[5] = phi
     out[6] = psi
     out[7] = pump_power + sd * f_r
-    out[8] = big_r * s_td**2
+    out[8] = big_r * s_td**2 + damper
     out[9] = mu_j * sync
     out[10] = s_t
     out[11] = s_td
     out[12] = math.sqrt(err2)
     out[13] = alpha
     if dt > 0.0:
-        sd_new = sd + dt * s_dd
+        sd_dot = dt * s_dd
+        if implicit:
+            a, c, b = kappa, big_r, kappa * sigma_dot
+            for i in range(n):
+                a += gains[k0 + i] * ref[n + i] * ref[n + i]
+                c += gains[d0 + i] * ref[n + i] * ref[n + i]
+                b += gains[k0 + i] * ref[n + i] * qd[i]
+            a, c, b = a / m_r, c / m_r, b / m_r
+            sd_dot = dt * (s_dd + dt * (b - a * sd)) / (1.0 + c * dt + a * dt * dt)
+        sd_new = sd + sd_dot
         state[0] = s + dt * sd_new
         state[1] = sd_new
         state[2] = sigma + dt * sigma_dot
+
+
+@kernel
+def fit_scale(rest: FloatArray, r0: FloatArray, box: FloatArray) -> float:
+    """The largest a ∈ [0, 1] with |rest_j + a r0_j| ≤ max(box_j, |rest_j|) for every j.
+    Twin: :func:`agents.passivity.fit_scale`."""
+    n = rest.shape[0]
+    fits = True
+    for i in range(n):
+        if abs(rest[i] + r0[i]) > max(box[i], abs(rest[i])):
+            fits = False
+    if fits:
+        return 1.0
+    a = 1.0
+    for i in range(n):
+        if r0[i] != 0.0:
+            sign = 1.0 if r0[i] > 0.0 else -1.0
+            a = min(a, (max(box[i], abs(rest[i])) - sign * rest[i]) / abs(r0[i]))
+    return max(a, 0.0)
+
+
+@kernel
+def hold_correction(
+    mass: FloatArray,
+    p: FloatArray,
+    qd: FloatArray,
+    tau: FloatArray,
+    bias: FloatArray,
+    ref: FloatArray,
+    m_r: float,
+    w_r_d: float,
+    alpha: float,
+    big_r: float,
+    k_pump: float,
+    metric: bool,
+    saturation_aware: bool,
+    box: FloatArray,
+    dt: float,
+    delta: FloatArray,
+) -> None:
+    """δ of the midpoint hold into ``delta`` (p = M q̇, ``ref`` the table row at s; 0 where
+    M − (dt/2)B is singular). Twin: :meth:`agents.passivity.PassivityController.hold_correction`."""
+    n = p.shape[0]
+    tau_r = ref[2 * n : 3 * n]
+    b = np.empty((n, n))
+    c_pp = (w_r_d - big_r) / (m_r * m_r)
+    for i in range(n):
+        d_i = p[i] if metric else qd[i]
+        for j in range(n):
+            b[i, j] = (
+                alpha * (2.0 * tau_r[i] * p[j] - p[i] * tau_r[j]) / m_r
+                + c_pp * p[i] * p[j]
+                - k_pump * d_i * p[j]
+            )
+    a = np.empty((n, n))
+    rhs = np.empty(n)
+    for i in range(n):
+        rhs[i] = tau[i] - bias[i]
+        for j in range(n):
+            a[i, j] = mass[i, j] - 0.5 * dt * b[i, j]
+    y = np.empty(n)
+    if not solve_small(a, rhs, y):
+        for i in range(n):
+            delta[i] = 0.0
+        return
+    finite = True
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += b[i, j] * y[j]
+        delta[i] = 0.5 * dt * acc
+        finite = finite and math.isfinite(delta[i])
+    if not finite:
+        for i in range(n):
+            delta[i] = 0.0
+        return
+    if saturation_aware:
+        beta = fit_scale(tau, delta, box)
+        for i in range(n):
+            delta[i] *= beta

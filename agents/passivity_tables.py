@@ -146,6 +146,11 @@ class PassivityTables:
             w_r_d=float(v[3 * n + 3]),
         )
 
+    def q_samples(self, count: int = 64) -> FloatArray:
+        """q_r at ``count`` evenly spaced values of s over one period, (count, n) (rad)."""
+        step = max(1, len(self.grid_s) // count)
+        return self.columns[::step, : self.n].copy()
+
     def exact(self, s: float) -> PathPoint:
         """Reference quantities at ``s`` computed on line from the path and model."""
         return reference_quantities(self.path, self.model, s)

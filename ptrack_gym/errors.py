@@ -25,6 +25,11 @@ class InvalidConfigError(PtrackError, ValueError):
     """A configuration value (rate, option, spec) is out of its documented domain."""
 
 
+class ControlRateError(InvalidConfigError):
+    """A controller cannot serve the control period it was asked for (its stated limit for
+    the path and gains is shorter)."""
+
+
 class SimulationClosedError(PtrackError, RuntimeError):
     """A closed simulation was used."""
 

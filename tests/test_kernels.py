@@ -275,7 +275,7 @@ def test_law_kernel_equals_the_numpy_law(robot: str, gains: PassivityGains) -> N
         ctrl.reset(q, qd, s0=state[0], sd0=state[1], sigma0=state[2])
         twin.reset(q, qd, s0=state[0], sd0=state[1], sigma0=state[2])
         tau = ctrl.step(q, qd, 1e-3)
-        expected = twin.law(q, qd, *state)
+        expected = twin.law(q, qd, *state, dt=1e-3)
         tau_ref = twin.step_numpy(q, qd, 1e-3)
         assert rel(tau, tau_ref) <= TOL
         out = ctrl.last

@@ -197,22 +197,40 @@ BLOW_UP_PUSHES = [
 ]  # fmt: skip
 
 
-@pytest.mark.parametrize(("onset", "direction"), BLOW_UP_PUSHES)
-def test_found_blow_up_pushes_break_the_paper_law_not_the_default(onset, direction) -> None:
-    """The mechanism and the remedy on the real plant: under a searched 2-J push the paper's
-    law (clipped by the actuators) goes unstable; the default, saturation-aware law — the
-    same law with its work-free reference torque scaled into the actuator box — does not."""
-    from train.adversary import evaluate
+def _push_episode(spec: dict, paper: bool, hold: str) -> tuple[bool, float]:
+    """(unstable, peak |q̇| in rad/s) of the iiwa's passivity controller (the paper's law or the
+    default, with the given ``hold``) from reset seed 0 under the push ``spec``, at 1 kHz."""
+    from agents import passivity
+    from agents.base import ControlContext
+    from train.episode import rollout
 
+    episode_s = spec["onset_s"] + 1.6
+    env = gym.make("ptrack_gym/IiwaTrack-v0", disturbance=spec, horizon_s=episode_s,
+                   max_episode_steps=round(episode_s * 1000))  # fmt: skip
+    try:
+        ctx = ControlContext.from_env(env)
+        tables = passivity_tables(ctx.path, ctx.model)
+        gains = passivity.gains_from_rates(ctx, passivity.PAPER_LAW if paper else None, tables)
+        ctrl = PassivityController(ctx.model, tables, gains, hold=hold)
+        record, _ = rollout(env, ControllerPolicy(env, ctrl), 0)
+    finally:
+        env.close()
+    return record.unstable, float(np.max(np.abs(record.qd)))
+
+
+@pytest.mark.parametrize(("onset", "direction"), BLOW_UP_PUSHES)
+def test_found_blow_up_pushes_break_the_sampled_paper_law_only(onset, direction) -> None:
+    """Under a searched 2-J push the paper's law, its torque held from the sample as the
+    earlier discretization did (``hold="sample"``), goes unstable: the push raises σ̇, the
+    gyroscopic τ_r⁰ ∝ σ̇² turns the velocity faster than one step resolves, and the clip does
+    work. The default law (saturation-aware) survives it with either hold, and so does the
+    paper's law with the midpoint hold (the default discretization)."""
     spec = {"type": "impulse", "energy_j": 2.0, "duration_s": 0.05, "onset_s": onset,
             "direction": list(direction)}  # fmt: skip
-    window = (onset + 0.05, onset + 1.55)
-    args = ("ptrack_gym/IiwaTrack-v0", spec, 0, onset + 1.6, window, 1000.0, 0.5)
-    paper = evaluate(args[0], "passivity_paper", *args[1:])
-    default = evaluate(args[0], "passivity", *args[1:])
-    assert paper.unstable
-    assert not default.unstable
-    assert default.peak_speed_rad_s < 0.5 * 50.0 and default.cost < 0.1
+    assert _push_episode(spec, paper=True, hold="sample")[0]
+    for paper, hold in ((True, "midpoint"), (False, "sample"), (False, "midpoint")):
+        unstable, peak = _push_episode(spec, paper=paper, hold=hold)
+        assert not unstable and peak < 0.5 * 50.0, (paper, hold)
 
 
 def test_remedy_keeps_the_law_where_it_fits_and_its_power_where_it_scales() -> None:

@@ -42,3 +42,42 @@ def quadratic_forms_upper(uppers: FloatArray, v: FloatArray) -> FloatArray:
     for k in range(v.shape[0]):
         out[k] = quadratic_form_upper(uppers[k], v[k])
     return out
+
+
+@kernel
+def solve_small(a: FloatArray, b: FloatArray, out: FloatArray) -> bool:
+    """x with a x = b into ``out`` by Gaussian elimination with partial pivoting, for a small
+    dense a (n, n) (neither argument is changed); False, and ``out`` undefined, where a pivot
+    is not above 1e-14 times the largest |a_ij| (singular to working precision). Twin:
+    ``np.linalg.solve`` (LAPACK's LU with partial pivoting)."""
+    n = b.shape[0]
+    m = a.copy()
+    x = b.copy()
+    scale = 0.0
+    for i in range(n):
+        for j in range(n):
+            scale = max(scale, abs(m[i, j]))
+    if not scale > 0.0:
+        return False
+    for k in range(n):
+        p = k
+        for i in range(k + 1, n):
+            if abs(m[i, k]) > abs(m[p, k]):
+                p = i
+        if not abs(m[p, k]) > 1e-14 * scale:
+            return False
+        if p != k:
+            for j in range(n):
+                m[k, j], m[p, j] = m[p, j], m[k, j]
+            x[k], x[p] = x[p], x[k]
+        for i in range(k + 1, n):
+            f = m[i, k] / m[k, k]
+            for j in range(k, n):
+                m[i, j] -= f * m[k, j]
+            x[i] -= f * x[k]
+    for k in range(n - 1, -1, -1):
+        acc = x[k]
+        for j in range(k + 1, n):
+            acc -= m[k, j] * out[j]
+        out[k] = acc / m[k, k]
+    return True
