@@ -570,9 +570,7 @@ class PassivityController:
         tau = tau_sync + f
         hold = np.zeros(self.n)
         if dt > 0.0 and self.hold == "midpoint":
-            hold = self.hold_correction(
-                q, qd, mass, tau, ref.tau, ref.m_r, ref_sigma.w_r_d, alpha, dt
-            )
+            hold = self.hold_correction(q, qd, mass, tau, ref.tau, ref.m_r, alpha, dt)
             tau = tau + hold
         return LawOutput(
             tau=tau,
@@ -604,32 +602,39 @@ class PassivityController:
         tau: FloatArray,
         tau_r: FloatArray,
         m_r: float,
-        w_r_d: float,
         alpha: float,
         dt: float,
     ) -> FloatArray:
         """δ (N·m, (n,)): what the midpoint hold adds to the law's torque τ at the sample
-        (see the class docstring), with B the law's velocity feedback of the reference
+        (see the class docstring), with B the law's velocity feedback through the reference
         torque, the phase damping and the pump,
 
         .. math::
 
             B = \\frac{\\alpha (2\\tau_r p^T - p\\,\\tau_r^T)}{M_r}
-                + \\frac{W_r'(\\sigma) - R}{M_r^2}\\, p p^T - k\\, d\\, p^T,
-            \\quad p = M(q)\\dot q,\\ d = p \\text{ (metric) or } \\dot q \\text{ (paper)},
+                - \\frac{\\alpha P + R}{M_r v^2}\\, p p^T - k\\, d\\, p^T,
+            \\quad p = M(q)\\dot q,\\ v^2 = \\dot q^T p,\\ P = \\dot q^T \\tau_r,
+            \\ d = p \\text{ (metric) or } \\dot q \\text{ (paper)},
 
             y = (M - \\tfrac{dt}{2} B)^{-1} (\\tau - h(q, \\dot q)),
             \\quad \\delta = \\tfrac{dt}{2} B y,
 
         h = C(q, q̇)q̇ + g(q) from the model; y is the arm's acceleration over the period
-        predicted by the model. With the saturation-aware box, δ is scaled (by
+        predicted by the model. B is ∂τ/∂q̇ of τ_r⁰ and of the μ channel's −μ τ_q̇/v less
+        their parts proportional to M (a common rate of every velocity direction, which the
+        two cancel on the path) and with the μ channel's turning of its direction written
+        as on the path (μ/v = −αP/M_r there), so B stays bounded as v → 0; the p pᵀ term is
+        dropped where v ≤ ``speed_eps``. With the saturation-aware box, δ is scaled (by
         :func:`fit_scale`) so that it never pushes a joint past max(τ_max, |τ|); where
         M − (dt/2)B is singular, δ = 0."""
         g = self.gains
         p = mass @ qd  # (n,)
+        speed2 = float(qd @ p)
         direction = p if g.pump == "metric" else qd
         b = alpha * (2.0 * np.outer(tau_r, p) - np.outer(p, tau_r)) / m_r
-        b = b + (w_r_d - g.R) / m_r**2 * np.outer(p, p) - g.k_pump * np.outer(direction, p)
+        if np.sqrt(max(speed2, 0.0)) > g.speed_eps:
+            b = b - (alpha * float(qd @ tau_r) + g.R) / (m_r * speed2) * np.outer(p, p)
+        b = b - g.k_pump * np.outer(direction, p)
         bias = self.model.inverse_dynamics(q, qd, np.zeros(self.n))
         try:
             y = np.linalg.solve(mass - 0.5 * dt * b, tau - bias)

@@ -164,7 +164,7 @@ def law_step(
         out[off + 3 * n + i] = 0.0
     if midpoint and dt > 0.0:
         hold_correction(
-            mass, tau_qd, qd, tau, bias, ref, m_r, w_r_d_sigma, alpha, big_r, k_pump, metric,
+            mass, tau_qd, qd, tau, bias, ref, m_r, alpha, big_r, k_pump, metric, speed_eps,
             saturation_aware, gains[b0 : b0 + n], dt, out[off + 3 * n : off + 4 * n],
         )  # fmt: skip
         for i in range(n):
@@ -227,11 +227,11 @@ def hold_correction(
     bias: FloatArray,
     ref: FloatArray,
     m_r: float,
-    w_r_d: float,
     alpha: float,
     big_r: float,
     k_pump: float,
     metric: bool,
+    speed_eps: float,
     saturation_aware: bool,
     box: FloatArray,
     dt: float,
@@ -242,7 +242,13 @@ def hold_correction(
     n = p.shape[0]
     tau_r = ref[2 * n : 3 * n]
     b = np.empty((n, n))
-    c_pp = (w_r_d - big_r) / (m_r * m_r)
+    speed2, power = 0.0, 0.0  # v² = q̇ᵀp, P = q̇ᵀτ_r
+    for i in range(n):
+        speed2 += qd[i] * p[i]
+        power += qd[i] * tau_r[i]
+    c_pp = 0.0
+    if math.sqrt(max(speed2, 0.0)) > speed_eps:
+        c_pp = -(alpha * power + big_r) / (m_r * speed2)
     for i in range(n):
         d_i = p[i] if metric else qd[i]
         for j in range(n):
