@@ -70,6 +70,12 @@ from agents.gains import (
     rates,
 )
 from agents.passivity_kernel import OUT, law_step, law_tables
+from agents.passivity_sampling import (
+    PHASE_DAMPING_LIMIT,
+    max_period_s,
+    phase_rate,
+    spring_angle_limit,
+)
 from agents.passivity_tables import PassivityTables, passivity_tables
 from ptrack_gym.errors import ControlRateError, InvalidConfigError
 from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
@@ -405,46 +411,63 @@ class PassivityController:
         self._zeros = np.zeros(self.n)
         self.mode_frequency_rad_s = max_mode_frequency(model, tables.q_samples(), self.k_diag)
         """ω_max, the fastest mode of φ's springs on the path (:func:`max_mode_frequency`)."""
+        self.phase_rate_1_s = phase_rate(tables, self.gains)
+        """max_s (R + q_r'ᵀD q_r')/M_r(s), the phase loop's damping rate
+        (:func:`~agents.passivity_sampling.phase_rate`)."""
         self._checked_dt: float | None = None
         if dt_s is not None:
             self.check_rate(dt_s)
         self._last_tau: FloatArray | None = None
 
     def max_period_s(self) -> float:
-        """The longest control period (s) this controller serves on its path with its gains:
-        the largest dt with ω_max dt ≤ 1/√max(c, ½), ω_max the fastest mode of φ's springs
-        on the path (:attr:`mode_frequency_rad_s`) and c = min_j D_j / (K_j dt) the damper's
-        share of the zero-order hold's energy (``PassivityGains.D``).
+        """The longest control period (s) this controller serves on its path with its gains
+        (:func:`~agents.passivity_sampling.max_period_s`), the shorter of two:
 
-        Why (``docs/control_rates.md``): a spring mode of frequency ω held over dt, with the
-        damper D = cK dt, has the per-step map of a continuous plant under a zero-order hold,
-        stable iff c > ½ and c (ω dt)² < 2 (ω dt < √2 at the default c = 1; measured: the
-        first random paths fail at ω dt = 1.43); without a damper (c ≤ ½, the paper's law)
-        nothing damps the mode and the sampled spring alone diverges at ω dt = 2. The limit
-        stated here keeps a factor √2 below either. The other loops need no limit of their
-        own: the virtual system is integrated implicitly and the velocity feedback held at its
-        midpoint (measured stable with κ and R raised 128× at 250 Hz)."""
-        omega = self.mode_frequency_rad_s
-        if omega <= 0.0:
-            return float("inf")
+        * springs: ω_max dt ≤ 1/√max(c, ½), ω_max the fastest mode of φ's springs on the
+          path (:attr:`mode_frequency_rad_s`), c = min_j D_j / (K_j dt) the damper's share.
+          A spring mode held over dt with the damper D = cK dt grows per step by
+          :func:`~agents.passivity_sampling.spring_growth`, < 1 iff c > ½ and c (ω dt)² < 2
+          (ω dt < √2 at the default c = 1; measured on random paths: the first failures at
+          ω dt = 1.43); the limit keeps a factor √2 inside. Without a damper (c < ½, the
+          paper's law) no period is stable for an isolated mode; its limit is c = ½'s.
+        * phase loop: c_phase dt ≤ 2 (:data:`~agents.passivity_sampling.PHASE_DAMPING_LIMIT`),
+          c_phase = max_s (R + q_r'ᵀD q_r')/M_r(s) (:attr:`phase_rate_1_s`): the virtual
+          system and the arm's motion along the path, damped against each other, keep ρ ≤ 1
+          up to c dt ≈ 2.5-3.2 (:func:`~agents.passivity_sampling.phase_growth`).
+
+        The phase spring κ needs no limit (σ integrates the arm's speed; measured stable at
+        250 Hz with κ raised 128×), nor does the velocity turning of τ_r⁰ (held at the
+        midpoint). Why each, with figures: ``docs/control_rates.md``."""
         d = float(np.min(self.d_diag / self.k_diag))  # D_j / K_j (s); c = d / dt
-        short = 1.0 / (omega * omega * d) if d > 0.0 else float("inf")  # where c ≥ ½
-        return short if short < 2.0 * d else math.sqrt(2.0) / omega
+        return max_period_s(self.mode_frequency_rad_s, d, self.phase_rate_1_s)
 
     def check_rate(self, dt_s: float) -> None:
         """Raise :class:`~ptrack_gym.errors.ControlRateError` if ``dt_s`` exceeds
-        :meth:`max_period_s`."""
+        :meth:`max_period_s`, naming the loop that sets the limit."""
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             raise InvalidConfigError(f"the control period must be positive, got {dt_s!r}")
         limit = self.max_period_s()
         if dt_s > limit * (1.0 + 1e-12):
+            phase_limit = PHASE_DAMPING_LIMIT / self.phase_rate_1_s
+            if phase_limit <= limit * (1.0 + 1e-12):
+                why = (
+                    f"its phase damping (R + q_r'ᵀD q_r')/M_r(s) reaches "
+                    f"{self.phase_rate_1_s:.4g} 1/s on the path's slowest stretch, "
+                    f"{self.phase_rate_1_s * dt_s:.3g} per period (at most "
+                    f"{PHASE_DAMPING_LIMIT:g}); lower R (the gain rate 'rho')"
+                )
+            else:
+                why = (
+                    f"the fastest mode of its springs K on the path turns at "
+                    f"{self.mode_frequency_rad_s:.4g} rad/s, "
+                    f"{self.mode_frequency_rad_s * dt_s:.3g} rad per period; lower K (the "
+                    f"gain rate 'omega')"
+                )
             raise ControlRateError(
                 f"the passivity controller cannot serve a control period of "
                 f"{dt_s * 1e3:.4g} ms ({1.0 / dt_s:.4g} Hz) on this path with these gains: its "
-                f"limit is {limit * 1e3:.4g} ms ({1.0 / limit:.4g} Hz). The fastest mode of "
-                f"its springs K on the path turns at {self.mode_frequency_rad_s:.4g} rad/s, "
-                f"{self.mode_frequency_rad_s * dt_s:.3g} rad per period; lower K (the gain "
-                f"rate 'omega') or raise the control rate (docs/control_rates.md)"
+                f"limit is {limit * 1e3:.4g} ms ({1.0 / limit:.4g} Hz): {why}, or raise the "
+                f"control rate (docs/control_rates.md)"
             )
         self._checked_dt = dt_s
 
@@ -785,30 +808,41 @@ def gains_from_rates(
         inertia, tables.mean_m_r, dt_s=ctx.dt_s,
         torque_limits_nm=ctx.profile.torque_limits_nm if aware else None, **r,
     )  # fmt: skip
-    return cap_modes(gains, ctx.model, tables, ctx.dt_s)
+    return cap_for_rate(gains, ctx.model, tables, ctx.dt_s)
 
 
-def cap_modes(
+def cap_for_rate(
     gains: PassivityGains, model: RobotModel, tables: PassivityTables, dt_s: float
 ) -> PassivityGains:
-    """``gains`` with K and D scaled by one factor where needed so that the fastest mode of
-    φ's springs on the path turns at most θ = :data:`~agents.gains.MAX_MODE_ANGLE_PER_SAMPLE`
-    · min(1, 1/√max(c, ½)) rad per control period (:func:`~agents.gains.max_mode_frequency`;
-    c = min_j D_j/(K_j dt)): 80% of the limit of :meth:`PassivityController.max_period_s`.
-    The per-joint cap reads M's diagonal at home only."""
+    """``gains`` within 80% of each limit of :meth:`PassivityController.max_period_s` at the
+    control period ``dt_s``:
+
+    * K and D scaled by one factor where needed so that the fastest mode of φ's springs on
+      the path turns at most θ = :data:`~agents.gains.MAX_MODE_ANGLE_PER_SAMPLE` ·
+      min(1, 1/√max(c, ½)) rad per period (:func:`~agents.gains.max_mode_frequency`;
+      c = min_j D_j/(K_j dt)): the per-joint cap reads M's diagonal at home only;
+    * R lowered where needed so that (R + q_r'ᵀD q_r')/M_r(s) dt ≤ 0.8 · 2 on the path's
+      slowest stretch (the extremes of M_r(s), not its mean M̄_r that R = ρ M̄_r scales by).
+    """
     n = model.n
     stiffness = gains.stiffness(n)
     c = float(np.min(gains.damping(n) / stiffness)) / dt_s
-    angle = MAX_MODE_ANGLE_PER_SAMPLE * min(1.0, 1.0 / math.sqrt(max(c, 0.5)))
+    angle = MAX_MODE_ANGLE_PER_SAMPLE * min(1.0, spring_angle_limit(c))
     omega = max_mode_frequency(model, tables.q_samples(), stiffness)
-    if omega * dt_s <= angle:
-        return gains
-    scale = (angle / (omega * dt_s)) ** 2
-    return dataclasses.replace(
-        gains,
-        K=tuple(float(k) for k in scale * stiffness),
-        D=tuple(float(d) for d in scale * gains.damping(n)),
-    )
+    if omega * dt_s > angle:
+        scale = (angle / (omega * dt_s)) ** 2
+        gains = dataclasses.replace(
+            gains,
+            K=tuple(float(k) for k in scale * stiffness),
+            D=tuple(float(d) for d in scale * gains.damping(n)),
+        )
+    cols = tables.columns
+    qd, m_r = cols[:, n : 2 * n], cols[:, 3 * n]
+    damper = np.einsum("ij,j,ij->i", qd, gains.damping(n), qd)  # q_r'ᵀD q_r' (J·s)
+    r_max = float(np.min(0.8 * PHASE_DAMPING_LIMIT * m_r / dt_s - damper))
+    if gains.R > r_max > 0.0:
+        gains = dataclasses.replace(gains, R=r_max)
+    return gains
 
 
 def default_gains(ctx: ControlContext, tables: PassivityTables | None = None) -> PassivityGains:
@@ -827,7 +861,7 @@ def build(
         InvalidPathError: the path is stationary for the law (M_r below β somewhere).
         ControlRateError: the context's control period exceeds what the gains serve on the
             path (:meth:`PassivityController.max_period_s`); default and rate-given gains
-            are capped (:func:`cap_modes`) and never are.
+            are capped (:func:`cap_for_rate`) and never are.
     """
     tables = passivity_tables(ctx.path, ctx.model)
     if gains is None:
