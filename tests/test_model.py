@@ -8,7 +8,7 @@ import numpy as np
 import pybullet as p
 import pytest
 
-from ptrack_gym.robots import BulletModel, PinocchioModel, robot_profile
+from ptrack_gym.robots import ROBOTS, BulletModel, PinocchioModel, robot_profile
 from ptrack_gym.robots.two_link import TwoLinkAnalyticModel
 from ptrack_gym.sim import BulletSim
 
@@ -84,3 +84,57 @@ def test_models_reject_bad_inputs() -> None:
         pin.mass_matrix(np.zeros(3))
     with pytest.raises(ValueError, match="wrong argument size"):
         pin.inverse_dynamics(np.zeros(2), np.zeros(3), np.zeros(2))
+
+
+@pytest.mark.parametrize("robot", sorted(ROBOTS))
+def test_no_link_carries_inertia_without_mass(robot: str) -> None:
+    """Every movable link of every robot's URDF (as loaded) that has no mass has no
+    rotational inertia either: a massless frame with a placeholder inertia (pybullet_data's Panda gave
+    panda_link8 and panda_grasptarget 0.1 kg·m² each) adds phantom inertia to the joint
+    it rides on."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.parse(ROBOTS[robot].urdf_path).getroot()
+    parent = {j.find("child").get("link"): j for j in root.iter("joint")}
+
+    def movable(name: str) -> bool:  # below a joint that moves, however far up
+        while name in parent:
+            joint = parent[name]
+            if joint.get("type") != "fixed":
+                return True
+            name = joint.find("parent").get("link")
+        return False
+
+    links = [link for link in root.iter("link") if movable(link.get("name"))]
+    assert len(links) >= ROBOTS[robot].n
+    for link in links:
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue
+        mass = float(inertial.find("mass").get("value"))
+        tensor = inertial.find("inertia")
+        moments = [float(tensor.get(k, "0")) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")]
+        if mass == 0.0:
+            assert not any(moments), f"{robot}: link {link.get('name')} has inertia {moments}"
+
+
+def test_panda_wrist_inertia_is_franka_ros_not_a_placeholder() -> None:
+    """M_77 at q = 0 by hand from the franka_ros values: joint 7 turns link7, the hand and the
+    fingers about link7's z axis, and the hand (yawed −45° about that axis, 0.107 m along it)
+    and the fingers (on it) keep their z moments, so M_77 = Σ (I_zz + m (x² + y²)) over the
+    three in link7's frame — about 0.0067 kg·m², not the 0.21 kg·m² the placeholder links
+    added."""
+    from ptrack_gym.robots.panda import FRANKA_ROS_INERTIALS as F
+
+    def about_axis(name: str) -> float:
+        block = F[name]
+        x, y, _ = block.com_m
+        return block.inertia_kgm2[5] + block.mass_kg * (x * x + y * y)
+
+    expected = (
+        about_axis("panda_link7") + about_axis("panda_hand")
+        + F["panda_leftfinger"].inertia_kgm2[5] + F["panda_rightfinger"].inertia_kgm2[5]
+    )  # fmt: skip
+    assert expected == pytest.approx(0.0067, abs=2e-4)
+    for model in (PinocchioModel(ROBOTS["panda"]), BulletModel(ROBOTS["panda"])):
+        assert model.mass_matrix(np.zeros(7))[6, 6] == pytest.approx(expected, rel=1e-9)
