@@ -95,7 +95,7 @@ def test_no_link_carries_inertia_without_mass(robot: str) -> None:
     import xml.etree.ElementTree as ET
 
     root = ET.parse(ROBOTS[robot].urdf_path).getroot()
-    parent = {j.find("child").get("link"): j for j in root.iter("joint")}
+    parent = {j.find("child").get("link"): j for j in root.findall("joint")}
 
     def movable(name: str) -> bool:  # below a joint that moves, however far up
         while name in parent:
@@ -105,7 +105,7 @@ def test_no_link_carries_inertia_without_mass(robot: str) -> None:
             name = joint.find("parent").get("link")
         return False
 
-    links = [link for link in root.iter("link") if movable(link.get("name"))]
+    links = [link for link in root.findall("link") if movable(link.get("name"))]
     assert len(links) >= ROBOTS[robot].n
     for link in links:
         inertial = link.find("inertial")
