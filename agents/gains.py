@@ -6,10 +6,15 @@ positive, and diagonal Λ and K_D commute, which the Slotine–Li Lyapunov argum
 
 Default gains are stated as rates (a closed-loop bandwidth ω in rad/s, …) in each robot's
 profile (``ptrack_gym/robots/<name>.py``, ``controller_gains``) and made absolute by each
-controller's ``default_gains`` with the robot's home-pose joint inertias. A default is
-*rate-aware*: no joint's natural frequency √(K_j / M_jj) may exceed
-:data:`MAX_FREQUENCY_PER_SAMPLE` · f_control (:func:`cap_stiffness`) — a discrete-time
-loop with a zero-order hold loses its continuous-time stability margin beyond that.
+controller's ``default_gains`` with the robot's home-pose joint inertias. Default and tuned
+gains are *rate-aware*, in two steps: no joint's natural frequency √(K_j / M_jj(home)) may
+exceed :data:`MAX_FREQUENCY_PER_SAMPLE` · f_control (:func:`cap_stiffness`); and, where a
+gain acts through the coupled arm (a stiffness or damping scaled by the home inertias and
+applied without M(q)), its fastest coupled mode on the path may turn at most
+:data:`MAX_MODE_ANGLE_PER_SAMPLE` rad and damp at most :data:`MAX_DAMPING_PER_SAMPLE` per
+control sample (:func:`max_mode_frequency`, :func:`cap_coupled_bandwidth`): the coupled
+modes of a folded arm or a light wrist run up to ~6× faster than the per-joint estimate,
+and a zero-order hold loses its continuous-time margin there.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import numpy as np
 
 from agents.base import FloatArray
 from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.paths import ReferencePath
 from ptrack_gym.robots.model import RobotModel
 
 #: A diagonal gain: one number for every joint, or one per joint.
@@ -33,6 +39,11 @@ MAX_FREQUENCY_PER_SAMPLE = 0.2
 #: diagonal of M at home, and the coupled modes of a light wrist or of a folded arm run up
 #: to ~6× faster (:func:`max_mode_frequency`).
 MAX_MODE_ANGLE_PER_SAMPLE = 0.8
+#: The largest damping per control sample δ = λ_max(M(q)⁻¹ D) dt of a velocity feedback D
+#: a default or tuned gain may give on the path: held over dt, the feedback scales the
+#: velocity by 1 − δ per step — flipping its sign, still decaying, beyond δ = 1, growing
+#: beyond δ = 2 — and the cap keeps 80% of that bound.
+MAX_DAMPING_PER_SAMPLE = 1.6
 
 
 def check_gain(value: Gain, name: str) -> Gain:
@@ -92,6 +103,27 @@ def max_mode_frequency(model: RobotModel, q_samples: FloatArray, stiffness: Floa
     mats = np.array([np.linalg.inv(model.mass_matrix(q)) for q in np.atleast_2d(q_samples)])
     scaled = root[None, :, None] * mats * root[None, None, :]
     return float(np.sqrt(max(np.linalg.eigvalsh(scaled)[:, -1].max(), 0.0)))
+
+
+def path_samples(path: ReferencePath, count: int = 64) -> FloatArray:
+    """q_r at ``count`` evenly spaced s over one period of ``path``, (count, n) (rad)."""
+    return path.evaluate(np.linspace(0.0, path.period_s, count, endpoint=False))[0]
+
+
+def cap_coupled_bandwidth(
+    omega_rad_s: float, dt_s: float, stiffness_gain: float, damping_gain: float
+) -> float:
+    """ω limited so that the fastest coupled mode of a gain family on the path stays inside
+    the per-sample limits: θ = ω dt √``stiffness_gain`` ≤ :data:`MAX_MODE_ANGLE_PER_SAMPLE`
+    and δ = ω dt ``damping_gain`` ≤ :data:`MAX_DAMPING_PER_SAMPLE`, where the family's
+    position feedback is ω² times a matrix whose largest λ(M⁻¹·) on the path is
+    ``stiffness_gain`` and its velocity feedback ω times one with ``damping_gain``
+    (:func:`max_mode_frequency`)."""
+    limit = min(
+        MAX_MODE_ANGLE_PER_SAMPLE / (dt_s * np.sqrt(stiffness_gain)),
+        MAX_DAMPING_PER_SAMPLE / (dt_s * damping_gain),
+    )
+    return float(min(omega_rad_s, limit))
 
 
 def cap_bandwidth(omega_rad_s: float, dt_s: float) -> float:

@@ -36,7 +36,9 @@ where g(q) cancels: two model calls, no finite differences.
 Default gains: Λ = ω I (1/s), K_D = c ω diag(m) (N·m·s/rad), m = diag M(q_home) — with
 c = 1 the linearised error obeys (s + Λ)(s + M⁻¹K_D) e = 0, a double pole near −ω — with ω
 and c (``kd_ratio``, default 1) the robot profile's ``controller_gains["slotine_li"]``, ω
-capped at α / dt (:func:`agents.gains.cap_bandwidth`).
+capped at α / dt (:func:`agents.gains.cap_bandwidth`) and where the coupled modes of the
+velocity feedback Λ + M(q)⁻¹K_D and the stiffness M(q)⁻¹K_DΛ on the path would outrun the
+control rate (:func:`agents.gains.cap_coupled_bandwidth`).
 """
 
 from __future__ import annotations
@@ -47,7 +49,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents.base import ControlContext, FeatureBlock, FloatArray
-from agents.gains import Gain, cap_bandwidth, check_gain, gain_vector, rates, rounded
+from agents.gains import (
+    Gain,
+    cap_bandwidth,
+    cap_coupled_bandwidth,
+    check_gain,
+    gain_vector,
+    max_mode_frequency,
+    path_samples,
+    rates,
+    rounded,
+)
 from agents.reference_clock import (
     ReferenceClock,
     ReferenceErrors,
@@ -97,7 +109,12 @@ def gains_from_rates(ctx: ControlContext, given: Mapping[str, float] | None) -> 
     updated by ``given`` — at the context's control rate (module docstring)."""
     r = rates(DEFAULT_RATES, given, NAME, ctx.profile.controller_gains.get(NAME))
     inertia = home_inertia_kgm2(ctx.model, ctx.profile)
-    return SlotineLiGains.from_inertia(inertia, cap_bandwidth(r["omega"], ctx.dt_s), r["kd_ratio"])
+    ratio = max_mode_frequency(ctx.model, path_samples(ctx.path), inertia) ** 2
+    c = r["kd_ratio"]  # damping Λ + c ω M⁻¹m, stiffness c ω² M⁻¹m (per ω, ω²)
+    omega = cap_coupled_bandwidth(
+        cap_bandwidth(r["omega"], ctx.dt_s), ctx.dt_s, c * ratio, 1.0 + c * ratio
+    )
+    return SlotineLiGains.from_inertia(inertia, omega, c)
 
 
 def default_gains(ctx: ControlContext) -> SlotineLiGains:

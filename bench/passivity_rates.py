@@ -25,7 +25,8 @@ import ptrack_gym  # noqa: F401  (registers the envs)
 from agents import passivity
 from agents import passivity_sampling as sampling
 from agents.base import ControlContext
-from agents.gains import max_mode_frequency, rates as layered_rates
+from agents.gains import max_mode_frequency
+from agents.gains import rates as layered_rates
 from agents.passivity import PassivityController
 from agents.passivity_tables import passivity_tables
 from agents.policy import ControllerPolicy
@@ -41,8 +42,10 @@ def context(robot: str, control_hz: float, path_seed: int = PATH_SEED) -> tuple:
     """(env, context, tables) for a random path of ``robot`` at ``control_hz``."""
     from ptrack_gym.robots import robot_profile
 
-    env = gym.make(robot_profile(robot).env_id, control_hz=control_hz, path="random",
-                   path_seed=path_seed, horizon_s=4.0, max_episode_steps=round(4 * control_hz))  # fmt: skip
+    env = gym.make(
+        robot_profile(robot).env_id, control_hz=control_hz, path="random",
+        path_seed=path_seed, horizon_s=4.0, max_episode_steps=round(4 * control_hz),
+    )  # fmt: skip
     ctx = ControlContext.from_env(env)
     return env, ctx, passivity_tables(ctx.path, ctx.model)
 
@@ -83,8 +86,10 @@ def trace(robot: str = "two_link", control_hz: float = 250.0) -> None:
         ref = tables(d["s"])
         a = (gains.kappa + ref.qd @ (k_diag * ref.qd)) / ref.m_r
         c = (gains.R + ref.qd @ (d_diag * ref.qd)) / ref.m_r
-        rows.append(f"{info['t_s']:7.3f} {d['s_tilde_dot']:+10.3e} {d['sd']:9.4f} "
-                    f"{d['sigma_dot']:9.4f} {ref.m_r:11.4f} {a * dt * dt:7.3f} {c * dt:6.3f}")  # fmt: skip
+        rows.append(
+            f"{info['t_s']:7.3f} {d['s_tilde_dot']:+10.3e} {d['sd']:9.4f} "
+            f"{d['sigma_dot']:9.4f} {ref.m_r:11.4f} {a * dt * dt:7.3f} {c * dt:6.3f}"
+        )
         if terminated or truncated:
             break
     env.close()

@@ -89,9 +89,9 @@ def test_models_reject_bad_inputs() -> None:
 @pytest.mark.parametrize("robot", sorted(ROBOTS))
 def test_no_link_carries_inertia_without_mass(robot: str) -> None:
     """Every movable link of every robot's URDF (as loaded) that has no mass has no
-    rotational inertia either: a massless frame with a placeholder inertia (pybullet_data's Panda gave
-    panda_link8 and panda_grasptarget 0.1 kg·m² each) adds phantom inertia to the joint
-    it rides on."""
+    rotational inertia either: a massless frame with a placeholder inertia (pybullet_data's
+    Panda gave panda_link8 and panda_grasptarget 0.1 kg·m² each) adds phantom inertia to
+    the joint it rides on."""
     import xml.etree.ElementTree as ET
 
     root = ET.parse(ROBOTS[robot].urdf_path).getroot()
