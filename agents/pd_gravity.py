@@ -13,7 +13,8 @@ the size of that steady error on each robot.
 Default gains: K_p = ω² diag(m) (N·m/rad), K_d = 2ζω diag(m) (N·m·s/rad), m = diag M(q_home)
 of the nominal model — the poles of computed torque for a decoupled arm near home — with ω
 the robot profile's ``controller_gains["pd_gravity"]["omega"]`` (rad/s), capped at α / dt
-(:func:`agents.gains.cap_bandwidth`).
+(:func:`agents.gains.cap_bandwidth`) and where the coupled modes of M(q)⁻¹K_p and M(q)⁻¹K_d
+on the path would outrun the control rate (:func:`agents.gains.cap_coupled_bandwidth`).
 """
 
 from __future__ import annotations
@@ -24,7 +25,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents.base import ControlContext, FeatureBlock, FloatArray
-from agents.gains import Gain, cap_bandwidth, check_gain, gain_vector, rates, rounded
+from agents.gains import (
+    Gain,
+    cap_bandwidth,
+    cap_coupled_bandwidth,
+    check_gain,
+    gain_vector,
+    max_mode_frequency,
+    path_samples,
+    rates,
+    rounded,
+)
 from agents.reference_clock import (
     ReferenceClock,
     ReferenceErrors,
@@ -76,7 +87,11 @@ def gains_from_rates(ctx: ControlContext, given: Mapping[str, float] | None) -> 
     updated by ``given`` — at the context's control rate (module docstring)."""
     r = rates(DEFAULT_RATES, given, NAME, ctx.profile.controller_gains.get(NAME))
     inertia = home_inertia_kgm2(ctx.model, ctx.profile)
-    return PDGravityGains.from_inertia(inertia, cap_bandwidth(r["omega"], ctx.dt_s), r["zeta"])
+    ratio = max_mode_frequency(ctx.model, path_samples(ctx.path), inertia) ** 2
+    omega = cap_coupled_bandwidth(
+        cap_bandwidth(r["omega"], ctx.dt_s), ctx.dt_s, ratio, 2.0 * r["zeta"] * ratio
+    )
+    return PDGravityGains.from_inertia(inertia, omega, r["zeta"])
 
 
 def default_gains(ctx: ControlContext) -> PDGravityGains:
