@@ -23,6 +23,10 @@ def _loader(name: str):
         from train.adversary import load_config
 
         return lambda p: load_config(p, []).validate()
+    if name.startswith("rates"):  # the control-rate studies (train.rates)
+        from train.rates import load_config
+
+        return lambda p: load_config(p, []).validate()
     if name.startswith("rl_"):  # the RL studies (train.rl_campaign)
         pytest.importorskip("stable_baselines3", reason="training needs the 'train' extra")
         from train.rl_campaign import validate_campaign

@@ -36,8 +36,14 @@ class CorruptResultsError(PtrackError, ValueError):
     """A results file that cannot be resumed from safely."""
 
 
-def read_episodes(path: Path) -> list[dict[str, str]]:
-    """The rows of an ``episodes.csv``, validated (see the module docstring)."""
+def read_episodes(
+    path: Path,
+    columns: Sequence[str] = COLUMNS,
+    key_columns: Sequence[str] = KEY_COLUMNS,
+) -> list[dict[str, str]]:
+    """The rows of an ``episodes.csv``, validated (see the module docstring); ``columns``
+    and ``key_columns`` are another study's (e.g. ``train.rates``)."""
+    columns, key_columns = tuple(columns), tuple(key_columns)
     if not path.exists():
         return []
     text = path.read_text()
@@ -49,16 +55,16 @@ def read_episodes(path: Path) -> list[dict[str, str]]:
     rows = list(csv.reader(text.splitlines()))
     if not rows:
         return []
-    if tuple(rows[0]) != COLUMNS:
-        raise CorruptResultsError(f"{path}: header {rows[0]} is not the expected {list(COLUMNS)}")
+    if tuple(rows[0]) != columns:
+        raise CorruptResultsError(f"{path}: header {rows[0]} is not the expected {list(columns)}")
     out, seen = [], set()
     for lineno, fields in enumerate(rows[1:], start=2):
-        if len(fields) != len(COLUMNS):
+        if len(fields) != len(columns):
             raise CorruptResultsError(
-                f"{path}, line {lineno}: {len(fields)} fields, expected {len(COLUMNS)}"
+                f"{path}, line {lineno}: {len(fields)} fields, expected {len(columns)}"
             )
-        row = dict(zip(COLUMNS, fields, strict=True))
-        key = tuple(row[k] for k in KEY_COLUMNS)
+        row = dict(zip(columns, fields, strict=True))
+        key = tuple(row[k] for k in key_columns)
         if key in seen:
             raise CorruptResultsError(f"{path}, line {lineno}: episode {key} appears twice")
         seen.add(key)
@@ -68,12 +74,13 @@ def read_episodes(path: Path) -> list[dict[str, str]]:
 
 class EpisodeWriter:
     """Appends rows to ``episodes.csv`` (header first if the file is new), each one
-    flushed and fsynced before :meth:`write` returns."""
+    flushed and fsynced before :meth:`write` returns; ``columns``: another study's."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, columns: Sequence[str] = COLUMNS) -> None:
         new = not path.exists() or path.stat().st_size == 0
+        self._columns = tuple(columns)
         self._file = path.open("a", newline="")
-        self._writer = csv.DictWriter(self._file, fieldnames=list(COLUMNS), extrasaction="raise")
+        self._writer = csv.DictWriter(self._file, fieldnames=list(columns), extrasaction="raise")
         if new:
             self._writer.writeheader()
             self._flush()
@@ -83,7 +90,7 @@ class EpisodeWriter:
         os.fsync(self._file.fileno())
 
     def write(self, row: dict[str, Any]) -> None:
-        self._writer.writerow({k: _fmt(row[k]) for k in COLUMNS})
+        self._writer.writerow({k: _fmt(row[k]) for k in self._columns})
         self._flush()
 
     def close(self) -> None:
