@@ -1,6 +1,6 @@
 """The passivity-based trajectory-tracking controller of Mahony (CDC 2019).
 
-Equations as restated in ``shared/CONTROL_LAW.md`` (which fixes the paper's double
+Equations as restated in ``docs/control_law.md`` (which fixes the paper's double
 count of W_r in H_r). The controller tracks the path q_r(s) *up to a time offset*: it
 carries its own path parameter s with rate ṡ, and σ, the path parameter of the true
 system, whose rate σ̇ = sqrt(q̇ᵀM q̇ / M_r(s)) is the arm's speed ratio to the path.
@@ -18,8 +18,10 @@ Notation (SI units; s, σ in seconds of path time): with measured (q, q̇),
     \\tau_r^0 = \\frac{v^2}{M_r}\\tau_r - \\frac{\\dot q^T\\tau_r}{M_r}\\tau_{\\dot q}, \\quad
     \\mu = \\frac{W_r'(\\sigma) - \\kappa\\tilde s - R\\dot{\\tilde s}}{\\sqrt{M_r(s)}}
 
-    \\tau_{sync} = -\\mu\\,\\tau_{\\dot q}/v + \\tau_r^0 - \\partial\\phi/\\partial q, \\quad
-    e_c = -\\kappa\\tilde s - R\\dot{\\tilde s} + (\\partial\\phi/\\partial q)^T q_r'(s)
+    \\tau_{sync} = -\\mu\\,\\tau_{\\dot q}/v + \\tau_r^0 - \\partial\\phi/\\partial q
+        - D\\dot e, \\quad
+    e_c = -\\kappa\\tilde s - R\\dot{\\tilde s} + (\\partial\\phi/\\partial q + D\\dot e)^T q_r'(s),
+    \\quad \\dot e = \\dot q - q_r'(s)\\dot s
 
     H_r = \\tfrac12 M_r(s)(\\dot s^2 - 1), \\quad
     f = -k(H + W_r(\\sigma))\\,\\tau_{\\dot q} \\text{ (metric) or } \\dot q \\text{ (paper)},
@@ -28,7 +30,9 @@ Notation (SI units; s, σ in seconds of path time): with measured (q, q̇),
     \\tau = \\tau_{sync} + f, \\quad
     M_r(s)\\ddot s = -\\tfrac12 M_r'(s)(\\dot s^2 - 1) + e_c + f_r
 
-Storage function E = H + W_r(σ) + H_r + φ + ψ, with Ė = −R s̃̇² (k = 0, no disturbance).
+Storage function E = H + W_r(σ) + H_r + φ + ψ, with Ė = −R s̃̇² − ėᵀDė (k = 0, no
+disturbance). D, a damper beside φ's spring, is not in the paper (D = 0 is its law; the
+defaults set D = c K dt, see below).
 
 Opt-in, not in the paper: ``PassivityGains.sync_rate`` > 0 adds a phase
 re-synchronisation of σ (see :meth:`PassivityController.law`); it acts only while the
@@ -37,19 +41,23 @@ also at nominal speed) and leaves the law above it unchanged; on the reference i
 exactly 0 whatever ``sync_ratio``. With ``sync_rate`` = 0 (the dataclass default) the law
 is exactly the paper's.
 
-Default gains (:func:`default_gains`) are set by four rates and an inertia floor, the same
-on every robot, made absolute with the robot's home-pose joint inertias and the mean M_r of
-the path in use (M̄_r, the "mass" of the path-parameter dynamics M_r(s) s̈ = …):
+Default gains (:func:`default_gains`) are set by rates and an inertia floor, the same on
+every robot, made absolute with the robot's home-pose joint inertias, the mean M_r of the
+path in use (M̄_r, the "mass" of the path-parameter dynamics M_r(s) s̈ = …) and the control
+period dt:
 
 * K_j = min(ω² · max(M_jj(q_home), m_floor), (α/dt)² M_jj)   spring of φ (N·m/rad)
-* κ = ω_s² · M̄_r,  R = ρ · M̄_r,  k_pump = λ / M̄_r ("metric" pump)
+* D_j = c K_j dt                                             damper beside φ (N·m·s/rad)
+* κ = ω_s² M̄_r,  R = ρ M̄_r,  k_pump = λ / M̄_r ("metric" pump)
 
-with the rates of the robot profile's ``controller_gains["passivity"]`` (two-link and iiwa:
-ω = 20 rad/s, ω_s = 20 rad/s, ρ = 10 1/s, λ = 2 1/s, m_floor = 0.1 kg·m²; the iiwa adds
-γ = 0.5, r̄ = 0.5). The cap (α = 0.2 rad per control sample, :func:`agents.gains.cap_stiffness`)
-keeps a floored light wrist from outrunning the control rate: it never binds at 1 kHz on
-the shipped robots' defaults and softens the iiwa's joint 7 at 500 Hz. The study that
-chose the rates is ``docs/passivity_gain_study.md``.
+then capped for the rate from the path's extremes (:func:`cap_for_rate`): K and D scaled
+together where the fastest coupled mode of M(q)⁻¹K on the path would turn more than 0.8 rad
+per sample, R lowered where (R + q_r'ᵀDq_r')/M_r(s) dt would exceed 1.6 on the slowest
+stretch. The rates are the robot profile's ``controller_gains["passivity"]`` (two-link and
+iiwa: ω = 20 rad/s, ω_s = 20 rad/s, ρ = 10 1/s, λ = 2 1/s, m_floor = 0.1 kg·m², c = 1; the
+iiwa adds γ = 0.5, r̄ = 0.5; α = 0.2 rad per sample, :func:`agents.gains.cap_stiffness`).
+The study that chose them is ``docs/passivity_gain_study.md``; the discretization, its
+rate limit (:meth:`PassivityController.max_period_s`) and the caps: ``docs/control_rates.md``.
 """
 
 from __future__ import annotations
