@@ -14,7 +14,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test lint bench tune adversary fronts rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants rl-iiwa-tuned-bc rl-iiwa-tuned-prior rl-iiwa-tuned-prior-seeds rl-iiwa-tuned-prior-ct rl-iiwa-prior-alone prior-vs-learned rl-iiwa-prior-bc-screen authority-probe rl-pure-sbx rl-pure-sbx-iiwa rl-pure-sbx-iiwa-ent rl-pure-dagger-iiwa rl-residual-imitation-iiwa rl-residual-k10-iiwa rl-three-arms-iiwa rl-three-arms-iiwa-k10 heldout clean check-python
+.PHONY: setup run test lint bench tune adversary fronts rates rl-study rl-deadband rl-gated-eval rl-pure-long rl-iiwa rl-iiwa-small rl-iiwa-accel rl-iiwa-accel1 rl-iiwa-slow-actor rl-iiwa-bc rl-iiwa-wide rl-iiwa-wide-long rl-iiwa-tuned rl-iiwa-tuned-variants rl-iiwa-tuned-bc rl-iiwa-tuned-prior rl-iiwa-tuned-prior-seeds rl-iiwa-tuned-prior-ct rl-iiwa-prior-alone prior-vs-learned rl-iiwa-prior-bc-screen authority-probe rl-pure-sbx rl-pure-sbx-iiwa rl-pure-sbx-iiwa-ent rl-pure-dagger-iiwa rl-residual-imitation-iiwa rl-residual-k10-iiwa rl-three-arms-iiwa rl-three-arms-iiwa-k10 heldout clean check-python
 
 setup: $(STAMP)
 
@@ -37,6 +37,13 @@ run: setup
 	$(PY) -m train.evaluate --config train/configs/main.yml --out results/main --no-progress
 	$(PY) -m train.evaluate --config train/configs/main_rl.yml --out results/main_rl --no-progress
 	$(PY) -m train.evaluate --config train/configs/main_rl_iiwa.yml --out results/main_rl_iiwa --no-progress
+	$(PY) -m train.rates --config train/configs/rates_main.yml --out results/rates --no-progress
+
+# The control-rate study of docs/control_rates.md (default gains on four robots, then tuned
+# gains on two; about 22 + 11 min on 2 cores). Refuses to overwrite: --resume to continue.
+rates: setup
+	$(PY) -m train.rates --config train/configs/rates.yml --no-progress
+	$(PY) -m train.rates --config train/configs/rates_tuned.yml --no-progress
 
 # Pure SAC on a longer budget: the study's pure runs of seeds 0 and 1 (needs rl-study's
 # runs/) resumed to 600 000 steps, 2 processes (about 1 h on 2 cores), then evaluated.

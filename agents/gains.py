@@ -110,6 +110,14 @@ def path_samples(path: ReferencePath, count: int = 64) -> FloatArray:
     return path.evaluate(np.linspace(0.0, path.period_s, count, endpoint=False))[0]
 
 
+def coupling_ratio(model: RobotModel, path: ReferencePath, inertia_kgm2: FloatArray) -> float:
+    """max over the path of λ_max(M(q_r(s))⁻¹ diag(``inertia_kgm2``)): how much faster a
+    gain scaled by those inertias (e.g. the home pose's) and applied without M(q) acts on
+    the coupled arm than on each joint alone (the square of :func:`max_mode_frequency`'s
+    factor)."""
+    return max_mode_frequency(model, path_samples(path), inertia_kgm2) ** 2
+
+
 def cap_coupled_bandwidth(
     omega_rad_s: float, dt_s: float, stiffness_gain: float, damping_gain: float
 ) -> float:

@@ -30,9 +30,8 @@ from agents.gains import (
     cap_bandwidth,
     cap_coupled_bandwidth,
     check_gain,
+    coupling_ratio,
     gain_vector,
-    max_mode_frequency,
-    path_samples,
     rates,
     rounded,
 )
@@ -87,7 +86,7 @@ def gains_from_rates(ctx: ControlContext, given: Mapping[str, float] | None) -> 
     updated by ``given`` — at the context's control rate (module docstring)."""
     r = rates(DEFAULT_RATES, given, NAME, ctx.profile.controller_gains.get(NAME))
     inertia = home_inertia_kgm2(ctx.model, ctx.profile)
-    ratio = max_mode_frequency(ctx.model, path_samples(ctx.path), inertia) ** 2
+    ratio = coupling_ratio(ctx.model, ctx.path, inertia)
     omega = cap_coupled_bandwidth(
         cap_bandwidth(r["omega"], ctx.dt_s), ctx.dt_s, ratio, 2.0 * r["zeta"] * ratio
     )
