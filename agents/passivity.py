@@ -72,7 +72,6 @@ import numpy as np
 
 from agents.base import ControlContext, FeatureBlock, FloatArray
 from agents.gains import (
-    MAX_MODE_ANGLE_PER_SAMPLE,
     cap_stiffness,
     max_mode_frequency,
     rates,
@@ -118,6 +117,9 @@ TUNABLE = {
 PAPER_LAW = {"sync_rate": 0.0, "saturation_aware": False, "zoh_damping": 0.0}
 
 _PUMPS = ("metric", "paper")
+#: The default and tuned gains run at most this fraction of their stated period limit
+#: (:func:`cap_for_rate`, :meth:`PassivityController.max_period_s`).
+RATE_MARGIN = 0.8
 #: How ``step`` integrates (s, ṡ, σ) (see :class:`PassivityController`).
 INTEGRATORS = ("implicit", "symplectic")
 #: Which torque ``step`` holds over the control period (see :class:`PassivityController`).
@@ -431,13 +433,15 @@ class PassivityController:
         """The longest control period (s) this controller serves on its path with its gains
         (:func:`~agents.passivity_sampling.max_period_s`), the shorter of two:
 
-        * springs: ω_max dt ≤ 1/√max(c, ½), ω_max the fastest mode of φ's springs on the
-          path (:attr:`mode_frequency_rad_s`), c = min_j D_j / (K_j dt) the damper's share.
-          A spring mode held over dt with the damper D = cK dt grows per step by
-          :func:`~agents.passivity_sampling.spring_growth`, < 1 iff c > ½ and c (ω dt)² < 2
-          (ω dt < √2 at the default c = 1; measured on random paths: the first failures at
-          ω dt = 1.43); the limit keeps a factor √2 inside. Without a damper (c < ½, the
-          paper's law) no period is stable for an isolated mode; its limit is c = ½'s.
+        * springs: ω_max dt ≤ θ(c) (:func:`~agents.passivity_sampling.spring_angle_limit`:
+          1 at the default c = 1, 1/√2 without a damper), ω_max the fastest mode of φ's
+          springs on the path (:attr:`mode_frequency_rad_s`), c = min_j D_j / (K_j dt) the
+          damper's share. A spring mode held over dt with the damper D = cK dt grows per
+          step by :func:`~agents.passivity_sampling.spring_growth`, < 1 iff c > ½ and
+          c (ω dt)² < 2 (ω dt < √2 at c = 1; measured on random paths: the first failures at
+          ω dt = 1.43); without a damper (the paper's law) an isolated mode grows at every
+          period and random paths first failed at ω dt = 1.0. The limit keeps a factor √2
+          inside either.
         * phase loop: c_phase dt ≤ 2 (:data:`~agents.passivity_sampling.PHASE_DAMPING_LIMIT`),
           c_phase = max_s (R + q_r'ᵀD q_r')/M_r(s) (:attr:`phase_rate_1_s`): the virtual
           system and the arm's motion along the path, damped against each other, keep ρ ≤ 1
@@ -822,20 +826,21 @@ def gains_from_rates(
 def cap_for_rate(
     gains: PassivityGains, model: RobotModel, tables: PassivityTables, dt_s: float
 ) -> PassivityGains:
-    """``gains`` within 80% of each limit of :meth:`PassivityController.max_period_s` at the
-    control period ``dt_s``:
+    """``gains`` such that the control period ``dt_s`` is at most 80% (:data:`RATE_MARGIN`)
+    of each limit of :meth:`PassivityController.max_period_s`:
 
     * K and D scaled by one factor where needed so that the fastest mode of φ's springs on
-      the path turns at most θ = :data:`~agents.gains.MAX_MODE_ANGLE_PER_SAMPLE` ·
-      min(1, 1/√max(c, ½)) rad per period (:func:`~agents.gains.max_mode_frequency`;
-      c = min_j D_j/(K_j dt)): the per-joint cap reads M's diagonal at home only;
+      the path (:func:`~agents.gains.max_mode_frequency`) turns at most 0.8 θ(0.8 c) rad per
+      period, θ the spring limit (:func:`~agents.passivity_sampling.spring_angle_limit`) and
+      c = min_j D_j/(K_j dt) — what it would be at the period dt/0.8 (scaling K and D
+      together keeps c); the per-joint cap reads M's diagonal at home only;
     * R lowered where needed so that (R + q_r'ᵀD q_r')/M_r(s) dt ≤ 0.8 · 2 on the path's
       slowest stretch (the extremes of M_r(s), not its mean M̄_r that R = ρ M̄_r scales by).
     """
     n = model.n
     stiffness = gains.stiffness(n)
     c = float(np.min(gains.damping(n) / stiffness)) / dt_s
-    angle = MAX_MODE_ANGLE_PER_SAMPLE * min(1.0, spring_angle_limit(c))
+    angle = RATE_MARGIN * spring_angle_limit(RATE_MARGIN * c)
     omega = max_mode_frequency(model, tables.q_samples(), stiffness)
     if omega * dt_s > angle:
         scale = (angle / (omega * dt_s)) ** 2
@@ -847,7 +852,7 @@ def cap_for_rate(
     cols = tables.columns
     qd, m_r = cols[:, n : 2 * n], cols[:, 3 * n]
     damper = np.einsum("ij,j,ij->i", qd, gains.damping(n), qd)  # q_r'ᵀD q_r' (J·s)
-    r_max = float(np.min(0.8 * PHASE_DAMPING_LIMIT * m_r / dt_s - damper))
+    r_max = float(np.min(RATE_MARGIN * PHASE_DAMPING_LIMIT * m_r / dt_s - damper))
     if gains.R > r_max > 0.0:
         gains = dataclasses.replace(gains, R=r_max)
     return gains

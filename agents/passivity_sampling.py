@@ -38,7 +38,7 @@ frozen at s; its spectral radius ρ is the factor by which a perturbation grows 
    and nothing in the paper's law damps a mode across the path — which on the xArm6's and
    the iiwa's wrists at 500 Hz grows into a limit cycle 65-180× the 1-kHz error; with
    c > ½, ρ < 1 iff c θ² < 2 (θ < √2 at c = 1): :func:`max_period_s`, the controller's
-   stated rate limit, keeps θ ≤ 1/√max(c, ½).
+   stated rate limit, keeps θ ≤ :func:`spring_angle_limit` (c) (1 at c = 1, 1/√2 at c = 0).
 """
 
 from __future__ import annotations
@@ -177,11 +177,15 @@ def spring_growth(theta: float | FloatArray, c: float) -> FloatArray:
 
 def spring_angle_limit(c: float) -> float:
     """The largest θ = ω dt (rad per control period) the rate limit admits for a spring mode
-    with damper share c: 1/√max(c, ½), a factor √2 inside θ = √(2/c), where
-    :func:`spring_growth` reaches 1 for c ≥ ½. With c < ½ (the paper's law: c = 0) no θ
-    keeps an isolated mode from growing (by √(1 + (½ − c)θ²) per step, to first order):
-    only the law's dissipation through the phase holds it, and the limit is that of c = ½."""
-    return 1.0 / math.sqrt(max(c, 0.5))
+    with damper share c = D/(K dt): 1/√c for c ≥ 1 — a factor √2 inside θ = √(2/c), where
+    :func:`spring_growth` reaches 1 — and, below c = 1, from 1 (c = 1) down to 1/√2 (c = 0)
+    linearly. With c ≤ ½ an isolated mode grows at every θ (by about (½ − c)θ²/2 per step)
+    and only the law's dissipation through the phase holds it: with c = 0 (the paper's law)
+    random paths on the iiwa and the xArm6 at 250 Hz first went unstable at θ = 1.0, none
+    up to 0.7 (``docs/control_rates.md``)."""
+    if c >= 1.0:
+        return 1.0 / math.sqrt(c)
+    return (1.0 + (math.sqrt(2.0) - 1.0) * max(c, 0.0)) / math.sqrt(2.0)
 
 
 def phase_rate(tables: PassivityTables, gains: PassivityGains) -> float:
@@ -198,12 +202,17 @@ def max_period_s(
 ) -> float:
     """The longest dt with ω dt ≤ :func:`spring_angle_limit` (c) at c = d/dt, d = min_j
     D_j/K_j (s), ω the fastest spring mode on the path (rad/s), and c_phase dt ≤
-    :data:`PHASE_DAMPING_LIMIT`, c_phase = :func:`phase_rate` (1/s). For the springs, ω θ(c) dt
-    grows with dt, so their dt_max = 1/(ω² d) where that is < 2d (there c ≥ ½), else √2/ω."""
+    :data:`PHASE_DAMPING_LIMIT`, c_phase = :func:`phase_rate` (1/s). ω dt / θ(d/dt) grows
+    with dt, so the springs' dt_max is 1/(ω² d) where that is ≤ d (there c ≥ 1), else the
+    root of √2 ω dt² − dt − (√2 − 1) d = 0."""
     springs = math.inf
     if omega_rad_s > 0.0:
-        d = damping_over_stiffness_s
+        d = max(damping_over_stiffness_s, 0.0)
         short = 1.0 / (omega_rad_s**2 * d) if d > 0.0 else math.inf
-        springs = short if short < 2.0 * d else math.sqrt(2.0) / omega_rad_s
+        if short <= d:
+            springs = short
+        else:
+            a = math.sqrt(2.0) * omega_rad_s
+            springs = (1.0 + math.sqrt(1.0 + 4.0 * a * (math.sqrt(2.0) - 1.0) * d)) / (2.0 * a)
     phase = PHASE_DAMPING_LIMIT / phase_rate_1_s if phase_rate_1_s > 0.0 else math.inf
     return min(springs, phase)

@@ -109,17 +109,31 @@ def test_a_period_past_the_limit_is_refused_at_construction_not_at_run_time() ->
     env.close()
 
 
-@pytest.mark.parametrize("c", [0.5, 1.0, 2.0])
+@pytest.mark.parametrize("c", [1.0, 2.0, 4.0])
 def test_the_spring_limit_sits_a_factor_sqrt2_inside_the_growth_boundary(c: float) -> None:
-    """The stated spring limit θ = 1/√max(c, ½): a held spring mode decays there and up
-    to just below √2 θ, and grows just above √2 θ (c > ½); without a damper (c = 0) it
-    grows at every θ."""
+    """The stated spring limit θ(c) = 1/√c for c ≥ 1: a held spring mode decays there and up
+    to just below √2 θ, and grows just above √2 θ."""
     theta = sampling.spring_angle_limit(c)
+    assert theta == pytest.approx(1.0 / np.sqrt(c))
     assert sampling.spring_growth(theta, c)[0] < 1.0
-    assert sampling.spring_growth(0.99 * np.sqrt(2.0) * theta, c)[0] <= 1.0 + 1e-12
-    if c > 0.5:
-        assert sampling.spring_growth(1.01 * np.sqrt(2.0) * theta, c)[0] > 1.0
+    assert sampling.spring_growth(0.99 * np.sqrt(2.0) * theta, c)[0] < 1.0
+    assert sampling.spring_growth(1.01 * np.sqrt(2.0) * theta, c)[0] > 1.0
+
+
+def test_without_a_damper_every_spring_mode_grows_and_the_limit_is_lower() -> None:
+    """c ≤ ½: the held spring mode grows at every θ (the hold feeds more than the damper
+    takes); the stated limit falls from 1 (c = 1) to 1/√2 (c = 0), and the closed-form
+    period limit matches it at both ends and in between."""
     assert np.all(sampling.spring_growth(np.linspace(0.01, 2.0, 50), 0.0) > 1.0)
+    assert np.all(sampling.spring_growth(np.linspace(0.01, 2.0, 50), 0.5) >= 1.0 - 1e-12)
+    assert sampling.spring_angle_limit(0.0) == pytest.approx(1.0 / np.sqrt(2.0))
+    assert sampling.spring_angle_limit(1.0) == pytest.approx(1.0)
+    omega = 300.0
+    for d in (0.0, 1e-4, 1e-3, 5e-3, 3e-2):  # D/K (s)
+        dt = sampling.max_period_s(omega, d)
+        c = d / dt
+        assert omega * dt == pytest.approx(sampling.spring_angle_limit(c), rel=1e-9), d
+        assert omega * dt * 1.001 > sampling.spring_angle_limit(d / (dt * 1.001))  # the longest
 
 
 @pytest.mark.parametrize("robot", ["iiwa", "panda"])

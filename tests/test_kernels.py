@@ -274,9 +274,10 @@ def test_law_kernel_equals_the_numpy_law(robot: str, gains: PassivityGains) -> N
         state = (s + rng.normal(0.0, 0.1), rng.uniform(-0.2, 1.5), s + rng.normal(0.0, 0.1))
         ctrl.reset(q, qd, s0=state[0], sd0=state[1], sigma0=state[2])
         twin.reset(q, qd, s0=state[0], sd0=state[1], sigma0=state[2])
-        tau = ctrl.step(q, qd, 1e-3)
-        expected = twin.law(q, qd, *state, dt=1e-3)
-        tau_ref = twin.step_numpy(q, qd, 1e-3)
+        dt = min(1e-3, 0.9 * ctrl.max_period_s())  # arbitrary gains: inside their rate limit
+        tau = ctrl.step(q, qd, dt)
+        expected = twin.law(q, qd, *state, dt=dt)
+        tau_ref = twin.step_numpy(q, qd, dt)
         assert rel(tau, tau_ref) <= TOL
         out = ctrl.last
         assert out is not None
@@ -322,7 +323,8 @@ def test_law_kernel_equals_the_numpy_law_when_the_remedy_scales(robot: str) -> N
         qd = tables(s).qd * rng.uniform(0.5, 6.0)
         state = (s, rng.uniform(0.5, 1.5), s + rng.normal(0.0, 0.05))
         ctrl.reset(q, qd, s0=state[0], sd0=state[1], sigma0=state[2])
-        dt = (0.0, 4e-3)[trial % 2]  # the midpoint hold's δ, scaled into the box, too
+        # the midpoint hold's δ, scaled into the box, too (inside the gains' rate limit)
+        dt = (0.0, min(4e-3, 0.9 * ctrl.max_period_s()))[trial % 2]
         ctrl.step(q, qd, dt)
         out, expected = ctrl.last, twin.law(q, qd, *state, dt=dt)
         assert out is not None
