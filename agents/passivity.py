@@ -124,6 +124,10 @@ RATE_MARGIN = 0.8
 INTEGRATORS = ("implicit", "symplectic")
 #: Which torque ``step`` holds over the control period (see :class:`PassivityController`).
 HOLDS = ("midpoint", "sample")
+#: T_b (s): the time constant of the midpoint hold's estimate of the model's acceleration
+#: error (:class:`PassivityController`): slow beside the law's fast loops (≥ 25 ms
+#: periods), fast beside a payload's or a model error's change.
+HOLD_FILTER_S = 0.1
 _STARTS = ("nearest", "reference")
 
 
@@ -371,7 +375,12 @@ class PassivityController:
       an explicit Euler step: the work-free τ_r⁰ = G(q̇) q̇ (G skew) is a gyroscopic torque
       that turns the arm's velocity at up to ~240 rad/s on a path's slow stretches, and an
       explicit step grows such a rotation by √(1 + (ω dt)²) per step; the midpoint keeps
-      it (``docs/control_rates.md``). δ = O(dt), and 0 at rest (q̇ = 0).
+      it (``docs/control_rates.md``). δ = O(dt), and 0 at rest (q̇ = 0). The prediction
+      subtracts b̂, the model's recent acceleration error — what it predicted for the last
+      period less what the arm did, (q̇_k − q̇_{k−1})/dt, low-passed with time constant
+      ``hold_filter_s`` (0.1 s; 0: none) — so a payload or a model error the nominal model
+      does not know does not bias δ (without it the iiwa's path error under the payload
+      preset at 1 kHz rose 1.5×).
     * ``"sample"``: the law's torque at the sample, held (the earlier scheme).
     """
 
@@ -385,6 +394,7 @@ class PassivityController:
         integrator: str = "implicit",
         hold: str = "midpoint",
         dt_s: float | None = None,
+        hold_filter_s: float = HOLD_FILTER_S,
     ) -> None:
         if tables.n != model.n:
             raise ValueError(f"tables have {tables.n} joints, model has {model.n}")
@@ -394,7 +404,12 @@ class PassivityController:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
         if hold not in HOLDS:
             raise ValueError(f"hold must be one of {HOLDS}, got {hold!r}")
-        self.integrator, self.hold = integrator, hold
+        if not (math.isfinite(hold_filter_s) and hold_filter_s >= 0.0):
+            raise ValueError(f"hold_filter_s must be >= 0, got {hold_filter_s!r}")
+        self.integrator, self.hold, self.hold_filter_s = integrator, hold, float(hold_filter_s)
+        # The midpoint hold's memory: (has a previous step, its dt, its q̇ (n), the model's
+        # acceleration under its torque (n), the acceleration error estimate b̂ (n)).
+        self._hold_state = np.zeros(2 + 3 * model.n)
         self.model = model
         self.tables = tables
         self.gains = gains or PassivityGains()
@@ -414,7 +429,7 @@ class PassivityController:
             [g.kappa, g.R, g.k_pump, 1.0 if g.pump == "metric" else 0.0, g.speed_eps,
              g.sync_rate, g.sync_ratio, 0.0 if g.torque_limits_nm is None else 1.0,
              1.0 if integrator == "implicit" else 0.0, 1.0 if hold == "midpoint" else 0.0,
-             *self.k_diag, *self.d_diag, *box]
+             float(hold_filter_s), *self.k_diag, *self.d_diag, *box]
         )  # fmt: skip
         self._tables = law_tables(gains_vector, tables.knots, tables.coefficients, tables.period_s)
         self._out = np.zeros(len(OUT) + 4 * self.n)
@@ -508,7 +523,14 @@ class PassivityController:
 
     # -- the law (pure) --------------------------------------------------------------
     def law(
-        self, q: FloatArray, qd: FloatArray, s: float, sd: float, sigma: float, dt: float = 0.0
+        self,
+        q: FloatArray,
+        qd: FloatArray,
+        s: float,
+        sd: float,
+        sigma: float,
+        dt: float = 0.0,
+        accel_bias: FloatArray | None = None,
     ) -> LawOutput:
         """Evaluate the control law at (q, q̇, s, ṡ, σ); changes no state.
 
@@ -605,7 +627,8 @@ class PassivityController:
         tau = tau_sync + f
         hold = np.zeros(self.n)
         if dt > 0.0 and self.hold == "midpoint":
-            hold = self.hold_correction(q, qd, mass, tau, ref.tau, ref.m_r, alpha, dt)
+            b_hat = self._zeros if accel_bias is None else np.asarray(accel_bias, dtype=np.float64)
+            hold = self.hold_correction(q, qd, mass, tau, ref.tau, ref.m_r, alpha, dt, b_hat)
             tau = tau + hold
         return LawOutput(
             tau=tau,
@@ -639,6 +662,7 @@ class PassivityController:
         m_r: float,
         alpha: float,
         dt: float,
+        accel_bias: FloatArray,
     ) -> FloatArray:
         """δ (N·m, (n,)): what the midpoint hold adds to the law's torque τ at the sample
         (see the class docstring), with B the law's velocity feedback through the reference
@@ -651,17 +675,17 @@ class PassivityController:
             \\quad p = M(q)\\dot q,\\ v^2 = \\dot q^T p,\\ P = \\dot q^T \\tau_r,
             \\ d = p \\text{ (metric) or } \\dot q \\text{ (paper)},
 
-            y = (M - \\tfrac{dt}{2} B)^{-1} (\\tau - h(q, \\dot q)),
+            y = (M - \\tfrac{dt}{2} B)^{-1} (\\tau - h(q, \\dot q) - M \\hat b),
             \\quad \\delta = \\tfrac{dt}{2} B y,
 
         h = C(q, q̇)q̇ + g(q) from the model; y is the arm's acceleration over the period
-        predicted by the model. B is ∂τ/∂q̇ of τ_r⁰ and of the μ channel's −μ τ_q̇/v less
-        their parts proportional to M (a common rate of every velocity direction, which the
-        two cancel on the path) and with the μ channel's turning of its direction written
-        as on the path (μ/v = −αP/M_r there), so B stays bounded as v → 0; the p pᵀ term is
-        dropped where v ≤ ``speed_eps``. With the saturation-aware box, δ is scaled (by
-        :func:`fit_scale`) so that it never pushes a joint past max(τ_max, |τ|); where
-        M − (dt/2)B is singular, δ = 0."""
+        predicted by the model less its recent error b̂ (``accel_bias``, rad/s²). B is ∂τ/∂q̇
+        of τ_r⁰ and of the μ channel's −μ τ_q̇/v less their parts proportional to M (a common
+        rate of every velocity direction, which the two cancel on the path) and with the μ
+        channel's turning of its direction written as on the path (μ/v = −αP/M_r there), so B
+        stays bounded as v → 0; the p pᵀ term is dropped where v ≤ ``speed_eps``. With the
+        saturation-aware box, δ is scaled (by :func:`fit_scale`) so that it never pushes a
+        joint past max(τ_max, |τ|); where M − (dt/2)B is singular, δ = 0."""
         g = self.gains
         p = mass @ qd  # (n,)
         speed2 = float(qd @ p)
@@ -672,7 +696,7 @@ class PassivityController:
         b = b - g.k_pump * np.outer(direction, p)
         bias = self.model.inverse_dynamics(q, qd, np.zeros(self.n))
         try:
-            y = np.linalg.solve(mass - 0.5 * dt * b, tau - bias)
+            y = np.linalg.solve(mass - 0.5 * dt * b, tau - bias - mass @ accel_bias)
         except np.linalg.LinAlgError:
             return np.zeros(self.n)
         delta = 0.5 * dt * (b @ y)
@@ -709,6 +733,7 @@ class PassivityController:
             m = self.model.mass_matrix(q)
             sd0 = float(np.sqrt(max(float(qd @ m @ qd), 0.0) / self.tables(s0).m_r))
         self._state[:] = (float(s0), float(sd0), float(sigma0))
+        self._hold_state[:] = 0.0
         self._last_tau = None
 
     def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
@@ -725,7 +750,7 @@ class PassivityController:
             bias = self.model.inverse_dynamics(q, qd, self._zeros)
         law_step(
             q, qd, self.model.mass_matrix(q), self.model.potential(q), bias, dt,
-            self._state, *self._tables, tau, self._out,
+            self._state, self._hold_state, *self._tables, tau, self._out,
         )  # fmt: skip
         self._last_tau = tau
         return tau
@@ -737,7 +762,17 @@ class PassivityController:
             self.check_rate(dt)
         st = self.state
         q, qd = np.asarray(q, dtype=np.float64), np.asarray(qd, dtype=np.float64)
-        out = self.law(q, qd, st.s, st.sd, st.sigma, dt)
+        n, hs = self.n, self._hold_state
+        midpoint = self.hold == "midpoint" and dt > 0.0
+        if midpoint and hs[0] > 0.5 and self.hold_filter_s > 0.0:  # b̂ ← b̂ + λ (error − b̂)
+            error = hs[2 + n : 2 + 2 * n] - (qd - hs[2 : 2 + n]) / hs[1]
+            lam = 1.0 - math.exp(-dt / self.hold_filter_s)
+            hs[2 + 2 * n :] += lam * (error - hs[2 + 2 * n :])
+        out = self.law(q, qd, st.s, st.sd, st.sigma, dt, hs[2 + 2 * n :])
+        if midpoint:  # what the model predicts the arm does under the torque sent
+            h = self.model.inverse_dynamics(q, qd, np.zeros(n))
+            hs[2 + n : 2 + 2 * n] = np.linalg.solve(self.model.mass_matrix(q), out.tau - h)
+            hs[2 : 2 + n], hs[0], hs[1] = qd, 1.0, dt
         sd_dot = dt * out.s_dd
         if self.integrator == "implicit" and dt > 0.0:
             g, ref = self.gains, self.tables(st.s)

@@ -28,7 +28,7 @@ OUT = ("s_dd", "sigma_dot", "energy", "h_plus_w", "h_r", "phi", "psi", "pump_pow
        "r0_scale")  # fmt: skip
 #: Entries of the gains vector before the diagonals of K and D and the torque box (n each).
 GAINS = ("kappa", "R", "k_pump", "pump_metric", "speed_eps", "sync_rate", "sync_ratio",
-         "saturation_aware", "implicit", "midpoint")  # fmt: skip
+         "saturation_aware", "implicit", "midpoint", "hold_filter_s")  # fmt: skip
 
 
 def law_tables(
@@ -62,6 +62,7 @@ def law_step(
     bias: FloatArray,
     dt: float,
     state: FloatArray,
+    hold_state: FloatArray,
     flat: FloatArray,
     layout: NDArray[np.int64],
     tau: FloatArray,
@@ -71,7 +72,8 @@ def law_step(
     U(q) = ``potential``, C(q, q̇)q̇ + g(q) = ``bias`` (read only with the ``midpoint`` flag
     and dt > 0: τ then includes the hold correction δ of
     :meth:`~agents.passivity.PassivityController.hold_correction`) and the state
-    ``state`` = (s, ṡ, σ); then one step of ``dt`` in
+    ``state`` = (s, ṡ, σ), ``hold_state`` the hold's memory (updated: see
+    :meth:`~agents.passivity.PassivityController.step_numpy`); then one step of ``dt`` in
     ``state``: ṡ ← ṡ + Δṡ, s ← s + dt ṡ, σ ← σ + dt σ̇, Δṡ the semi-implicit update of
     :meth:`~agents.passivity.PassivityController.step_numpy` (Δṡ = dt s̈ with the
     ``implicit`` flag off; dt = 0: evaluate only)."""
@@ -82,6 +84,7 @@ def law_step(
     kappa, big_r, k_pump = gains[0], gains[1], gains[2]
     metric, speed_eps, sync_rate, sync_ratio = gains[3] > 0.5, gains[4], gains[5], gains[6]
     saturation_aware, implicit, midpoint = gains[7] > 0.5, gains[8] > 0.5, gains[9] > 0.5
+    hold_filter = gains[10]
     k0, d0, b0 = len(GAINS), len(GAINS) + n, len(GAINS) + 2 * n  # offsets of K, D, the box
     s, sd, sigma = state[0], state[1], state[2]
     m = 3 * n + 4
@@ -163,12 +166,25 @@ def law_step(
         out[off + n + i] = tau_r0
         out[off + 3 * n + i] = 0.0
     if midpoint and dt > 0.0:
+        qd_prev = hold_state[2 : 2 + n]
+        acc_prev = hold_state[2 + n : 2 + 2 * n]
+        b_hat = hold_state[2 + 2 * n : 2 + 3 * n]
+        if hold_state[0] > 0.5 and hold_filter > 0.0:  # b̂ ← b̂ + λ (error − b̂)
+            lam = 1.0 - math.exp(-dt / hold_filter)
+            for i in range(n):
+                error = acc_prev[i] - (qd[i] - qd_prev[i]) / hold_state[1]
+                b_hat[i] += lam * (error - b_hat[i])
         hold_correction(
-            mass, tau_qd, qd, tau, bias, ref, m_r, alpha, big_r, k_pump, metric, speed_eps,
-            saturation_aware, gains[b0 : b0 + n], dt, out[off + 3 * n : off + 4 * n],
+            mass, tau_qd, qd, tau, bias, b_hat, ref, m_r, alpha, big_r, k_pump, metric,
+            speed_eps, saturation_aware, gains[b0 : b0 + n], dt, out[off + 3 * n : off + 4 * n],
         )  # fmt: skip
+        rhs = np.empty(n)
         for i in range(n):
             tau[i] += out[off + 3 * n + i]
+            rhs[i] = tau[i] - bias[i]
+            qd_prev[i] = qd[i]
+        hold_state[0] = 1.0 if solve_small(mass, rhs, acc_prev) else 0.0
+        hold_state[1] = dt
     out[0] = s_dd
     out[1] = sigma_dot
     out[2] = h_plus_w + h_r + phi + psi
@@ -225,6 +241,7 @@ def hold_correction(
     qd: FloatArray,
     tau: FloatArray,
     bias: FloatArray,
+    accel_bias: FloatArray,
     ref: FloatArray,
     m_r: float,
     alpha: float,
@@ -237,7 +254,8 @@ def hold_correction(
     dt: float,
     delta: FloatArray,
 ) -> None:
-    """δ of the midpoint hold into ``delta`` (p = M q̇, ``ref`` the table row at s; 0 where
+    """δ of the midpoint hold into ``delta`` (p = M q̇, ``accel_bias`` the acceleration
+    error estimate b̂, ``ref`` the table row at s; 0 where
     M − (dt/2)B is singular). Twin: :meth:`agents.passivity.PassivityController.hold_correction`."""
     n = p.shape[0]
     tau_r = ref[2 * n : 3 * n]
@@ -263,6 +281,7 @@ def hold_correction(
         rhs[i] = tau[i] - bias[i]
         for j in range(n):
             a[i, j] = mass[i, j] - 0.5 * dt * b[i, j]
+            rhs[i] -= mass[i, j] * accel_bias[j]
     y = np.empty(n)
     if not solve_small(a, rhs, y):
         for i in range(n):
