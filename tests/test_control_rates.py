@@ -247,28 +247,47 @@ def _storage_setup(control_hz: float):
     return profile, model, tables, ctx, rates
 
 
-@pytest.mark.parametrize("control_hz", [1000.0, 250.0, 100.0])
-def test_discrete_storage_falls_up_to_a_first_order_residue(control_hz: float) -> None:
-    """The exact sampled closed loop (analytic two-link arm under the hold), pump and
-    re-synchronisation off, undisturbed, from 0.05 rad off a random path, 3 s: the law's
-    storage E ends lower than it starts, and the steps where it rises add up to at most
-    2.5 · dt J/s per second (measured 1.2-3.7 over 1 kHz-100 Hz and two starts: a first-order
-    residue, not a drift). The earlier discretization lets E grow at 250 Hz."""
+def _storage_of(control_hz: float, start_seed: int, earlier: bool = False):
+    """The law's storage over 3 s of the exact sampled closed loop (analytic two-link arm
+    under the hold), pump and re-synchronisation off, undisturbed, from 0.05 rad off a
+    random path (offset drawn with ``start_seed``) at 1.1× the path's speed."""
     _, model, tables, ctx, rates = _storage_setup(control_hz)
-    gains = dataclasses.replace(passivity.gains_from_rates(ctx, rates, tables), k_pump=0.0)
+    if earlier:
+        gains = dataclasses.replace(_earlier(ctx, tables, rates), k_pump=0.0)
+        ctrl = PassivityController(model, tables, gains, integrator="symplectic", hold="sample")
+    else:
+        gains = dataclasses.replace(passivity.gains_from_rates(ctx, rates, tables), k_pump=0.0)
+        ctrl = PassivityController(model, tables, gains)
     s0 = 0.3
     ref = tables.exact(s0)
-    q0 = ref.q + 0.05 * np.random.default_rng(1).normal(size=2)
-    args = (model, tables, q0, 1.1 * ref.qd, s0, 0.9, ctx.dt_s, 3.0)
-    run = storage_run(PassivityController(model, tables, gains), *args)
+    q0 = ref.q + 0.05 * np.random.default_rng(start_seed).normal(size=2)
+    return storage_run(ctrl, model, tables, q0, 1.1 * ref.qd, s0, 0.9, ctx.dt_s, 3.0)
+
+
+@pytest.mark.parametrize("control_hz", [1000.0, 250.0, 100.0])
+def test_discrete_storage_falls_where_the_start_dissipates(control_hz: float) -> None:
+    """From a start whose dissipation dominates (offset seed 1: E falls 0.13-0.18 J in 3 s)
+    the law's storage ends lower than it starts by at least half the dissipated energy, at
+    every rate; the earlier discretization makes E grow over the same run at 250 Hz. (Near
+    the path the residue can outweigh the dissipation: offset seed 2 at 100 Hz ends
+    7e-4 J higher — without the pump the energy level H + W_r is a neutral direction, so a
+    first-order residue accumulates in it; see the next test.)"""
+    run = _storage_of(control_hz, 1)
     assert run.energy[-1] < run.energy[0] - 0.5 * run.dissipated
-    assert run.residue <= 5.0 * ctx.dt_s * 3.0, run.residue
     if control_hz == 250.0:
-        old = dataclasses.replace(_earlier(ctx, tables, rates), k_pump=0.0)
-        earlier = PassivityController(model, tables, old, integrator="symplectic", hold="sample")
-        grown = storage_run(earlier, *args)
+        grown = _storage_of(control_hz, 1, earlier=True)
         assert grown.energy[-1] > grown.energy[0]
         assert grown.residue > 3.0 * run.residue
+
+
+@pytest.mark.parametrize("start_seed", [1, 2, 3])
+def test_storage_residue_is_first_order_in_dt(start_seed: int) -> None:
+    """The residue r = Σ max(0, E_{k+1} − E_k) — what the discretization adds where E
+    should not rise — vanishes with dt: r(1 kHz) ≤ ½ r(250 Hz) (first order gives ¼;
+    measured 0.15-0.32 over five starts; r/(dt·T) = 0.5-15 J/s² depending on the start's
+    energy, at every rate from 1 kHz to 100 Hz)."""
+    fine, coarse = _storage_of(1000.0, start_seed), _storage_of(250.0, start_seed)
+    assert 0.0 < fine.residue <= 0.5 * coarse.residue, (fine.residue, coarse.residue)
 
 
 def test_hold_correction_is_first_order_and_zero_at_rest() -> None:
