@@ -32,6 +32,13 @@ from ptrack_gym.robots import RobotModel, RobotProfile
 FloatArray = NDArray[np.float64]
 
 
+def state_arrays(q: Any, qd: Any) -> tuple[FloatArray, FloatArray]:
+    """(q, q̇) as native float64 arrays (rad, rad/s): any real dtype or byte order a user
+    passes (float16, float32, longdouble, big-endian, ints) is cast once here, so the
+    compiled kernels and the model see the one dtype they are built for."""
+    return np.asarray(q, dtype=np.float64), np.asarray(qd, dtype=np.float64)
+
+
 @runtime_checkable
 class Controller(Protocol):
     """A state-feedback torque controller for an n-joint arm (SI units)."""

@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from agents.base import ControlContext, FeatureBlock, FloatArray
+from agents.base import ControlContext, FeatureBlock, FloatArray, state_arrays
 from agents.gains import Gain, cap_bandwidth, check_gain, gain_vector, rates
 from agents.reference_clock import (
     ReferenceClock,
@@ -108,6 +108,7 @@ class ComputedTorqueController:
 
         One inverse-dynamics call gives M(q) v + C(q, q̇) q̇ + g(q) exactly.
         """
+        q, qd = state_arrays(q, qd)
         err = self.clock.errors(q, qd, dt)
         v = err.qdd_r + self.kd * err.ed + self.kp * err.e  # (n,) rad/s²
         tau = self.model.inverse_dynamics(q, qd, v)

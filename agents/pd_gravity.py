@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.base import ControlContext, FeatureBlock, FloatArray
+from agents.base import ControlContext, FeatureBlock, FloatArray, state_arrays
 from agents.gains import (
     Gain,
     cap_bandwidth,
@@ -133,6 +133,7 @@ class PDGravityController:
 
     def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
         """τ = K_p e + K_d ė + g(q) (N·m), shape (n,); then s ← s + dt."""
+        q, qd = state_arrays(q, qd)
         err = self.clock.errors(q, qd, dt)
         tau = self.kp * err.e + self.kd * err.ed + self.model.gravity(q)
         self._last = (self.clock.advance(dt), err)

@@ -48,7 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.base import ControlContext, FeatureBlock, FloatArray
+from agents.base import ControlContext, FeatureBlock, FloatArray, state_arrays
 from agents.gains import (
     Gain,
     cap_bandwidth,
@@ -185,6 +185,7 @@ class SlotineLiController:
 
     def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
         """τ = M q̈_ref + C(q, q̇) q̇_ref + g + K_D r (N·m), shape (n,); then s ← s + dt."""
+        q, qd = state_arrays(q, qd)
         err = self.clock.errors(q, qd, dt)
         e, ed = err.e, err.ed
         qd_ref = err.qd_r + self.lam * e  # (n,) rad/s

@@ -21,7 +21,7 @@ from agents.base import ControlContext, Controller
 from agents.computed_torque import ComputedTorqueController, ComputedTorqueGains
 from agents.pd_gravity import PDGravityController, PDGravityGains
 from agents.policy import ControllerPolicy
-from agents.registry import make_controller
+from agents.registry import CONTROLLER_NAMES, make_controller
 from agents.slotine_li import SlotineLiController, SlotineLiGains, christoffel_product
 from ptrack_gym.paths import default_path
 from ptrack_gym.robots import ROBOTS, robot_profile
@@ -387,3 +387,28 @@ def test_per_joint_gains_equal_the_broadcast_scalar() -> None:
         controller.reset(q, qd, 0.7)
         taus.append(controller.step(q, qd, 1e-3))
     np.testing.assert_array_equal(taus[0], taus[1])
+
+
+@pytest.mark.parametrize("name", CONTROLLER_NAMES)
+@pytest.mark.parametrize(
+    "dtype", [np.float16, np.float32, np.longdouble, np.dtype(">f8"), np.int64],
+    ids=["float16", "float32", "longdouble", "big-endian-f8", "int64"],
+)  # fmt: skip
+def test_every_controller_takes_a_state_of_any_real_dtype_as_its_float64_values(
+    envs: dict[str, gym.Env[Any, Any]], name: str, dtype: np.dtype
+) -> None:
+    """A state (q, q̇) of another real dtype or byte order gives the torque of the float64
+    arrays of the same values — not numba's TypingError from a kernel."""
+    env = envs["two_link"]
+    env.reset(seed=0)
+    q, qd = env.unwrapped.measured_joint_state()
+    q, qd = np.round(q, 2).astype(dtype), np.round(qd, 2).astype(dtype)
+    if dtype == np.int64:
+        q, qd = np.array([1, -1], dtype=dtype), np.array([0, 2], dtype=dtype)
+    torques = []
+    for state in ((q, qd), (q.astype(np.float64), qd.astype(np.float64))):
+        ctrl = make_baseline(name, env)
+        ctrl.reset(state[0].astype(np.float64), state[1].astype(np.float64), env.unwrapped.s0)
+        torques.append(ctrl.step(*state, env.unwrapped.dt))
+    assert torques[0].dtype == np.float64
+    assert np.array_equal(torques[0], torques[1])

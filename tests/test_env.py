@@ -714,6 +714,37 @@ def test_integer_actions_are_accepted_as_numbers(make_env: MakeEnv) -> None:
     )
 
 
+@pytest.mark.parametrize(
+    "dtype", [np.float16, np.longdouble, np.dtype(">f8"), np.dtype(">f4"), np.int16],
+    ids=["float16", "longdouble", "big-endian-f8", "big-endian-f4", "int16"],
+)  # fmt: skip
+def test_actions_of_any_real_dtype_or_byte_order_step_as_their_float64_values(
+    make_env: MakeEnv, dtype: np.dtype
+) -> None:
+    """The action kernel is compiled for native floats: other real dtypes and byte orders
+    are cast, and step exactly as the float64 array of the same values."""
+    env, twin = make_env(TWO_LINK), make_env(TWO_LINK)
+    env.reset(seed=0)
+    twin.reset(seed=0)
+    action = np.array([0.5, -1.0]).astype(dtype)
+    _assert_results_equal(
+        [env.unwrapped.step(action)], [twin.unwrapped.step(action.astype(np.float64))]
+    )
+
+
+def test_a_longdouble_action_beyond_float64_is_refused_as_non_finite(make_env: MakeEnv) -> None:
+    env = make_env(TWO_LINK)
+    env.reset(seed=0)
+    huge = np.array([np.longdouble(10.0) ** 400, 0.0], dtype=np.longdouble)
+    with np.errstate(over="ignore"):
+        if np.isfinite(huge.astype(np.float64)).all():  # longdouble is float64 here
+            pytest.skip("numpy's longdouble is float64 on this platform")
+    before = env.unwrapped.joint_state()
+    with pytest.raises(InvalidActionError, match="non-finite"):
+        env.unwrapped.step(huge)
+    assert np.array_equal(env.unwrapped.joint_state()[0], before[0])
+
+
 @pytest.mark.parametrize("disturbance", [None, "impulse"])
 def test_stepping_the_unwrapped_env_before_reset_raises_reset_needed(
     disturbance: str | None,

@@ -288,6 +288,9 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             raise InvalidActionError(f"action must be real numbers, got dtype {a.dtype}")
         if a.shape != (self.n,):
             raise InvalidActionError(f"action must have shape ({self.n},), got {a.shape}")
+        if a.dtype != np.float32 and a.dtype != np.float64:  # float16, longdouble, ints, or
+            with np.errstate(over="ignore"):  # another byte order: the kernel takes native
+                a = a.astype(np.float64)  # floats; a longdouble beyond them is ±inf, refused
         clipped, tau = np.empty(self.n), np.empty(self.n)  # both end up in the info/reward
         if clip_action(a, self.torque_limits_nm, clipped, tau) >= 0:
             a = a.astype(np.float64)
