@@ -1,10 +1,11 @@
 # The README's two commands: `make run` and `make test`. Both set up .venv first.
 #
 # Python: python3.11 when it is on PATH (the version these machines test), otherwise the
-# newest python3.1x >= 3.10 found on PATH; `make PYTHON=/path/to/python3.x` chooses one.
+# newest python3.1x >= 3.10 found on PATH, otherwise python3 (check-python refuses it unless
+# it is 3.10-3.14); `make PYTHON=/path/to/python3.x` chooses one.
 # On 3.12 and later pip builds PyBullet 3.2.7 from source (no wheel): install a C++
 # compiler first (Debian/Ubuntu: `apt install g++ python3-dev`).
-PYTHON ?= $(shell for v in 3.11 3.14 3.13 3.12 3.10; do \
+PYTHON ?= $(shell for v in 3.11 3.14 3.13 3.12 3.10 3; do \
 	command -v python$$v >/dev/null 2>&1 && { echo python$$v; break; }; done)
 # torch first: on these machines torch==2.13.0 resolves to a local CPU build, and the
 # pinned version then satisfies stable-baselines3 without downloading CUDA packages.
@@ -19,7 +20,7 @@ STAMP := $(VENV)/.installed
 setup: $(STAMP)
 
 check-python:
-	@test -n "$(PYTHON)" || { echo "make: no Python 3.10-3.14 found on PATH: install python3.11 (or 3.10, 3.12, 3.13), or pass PYTHON=/path/to/python3.x" >&2; exit 1; }
+	@test -n "$(PYTHON)" || { echo "make: no python3.1x or python3 found on PATH: install Python 3.11 (or 3.10, 3.12-3.14), or pass PYTHON=/path/to/python3.x" >&2; exit 1; }
 	@$(PYTHON) -c 'import sys; sys.exit(0 if (3, 10) <= sys.version_info[:2] < (3, 15) else 1)' \
 		|| { echo "make: $(PYTHON) is not Python 3.10-3.14; pass PYTHON=/path/to/python3.x" >&2; exit 1; }
 
