@@ -1,7 +1,7 @@
 """The passivity controller's reference tables of a path for a dynamics model.
 
 :class:`PassivityTables` tabulates, for a path and a :class:`~ptrack_gym.robots.RobotModel`,
-every quantity of CONTROL_LAW.md from the path and inverse dynamics — no finite
+every quantity of ``docs/control_law.md`` from the path and inverse dynamics — no finite
 differences:
 
 .. math::

@@ -122,10 +122,9 @@ PROFILE = RobotProfile(
     ),
     default_control_hz=500.0,
     controller_gains={
-        # /tmp/research/panda_convergence.md: the phase defect of σ (s̃ held ≈ −2e-3 s at
-        # nominal speed, mapped through K⁻¹M into a transverse residual) needs the
-        # re-synchronisation to act at nominal speed too (r̄ = 2 > 1): env seeds 0–19 at
-        # 1 kHz converge 20/20, all by 10.2 s.
+        # The phase defect of σ (s̃ held ≈ −2e-3 s at nominal speed, mapped through K⁻¹M
+        # into a transverse residual) needs the re-synchronisation to act at nominal speed
+        # too (r̄ = 2 > 1).
         "passivity": {
             "omega": 15.0,
             "omega_s": 20.0,
