@@ -70,7 +70,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from agents.base import ControlContext, FeatureBlock, FloatArray
+from agents.base import ControlContext, FeatureBlock, FloatArray, state_arrays
 from agents.gains import (
     cap_stiffness,
     max_mode_frequency,
@@ -721,8 +721,7 @@ class PassivityController:
 
         Keyword arguments ``s0``, ``sd0``, ``sigma0`` override the choice.
         """
-        q = np.asarray(q, dtype=np.float64)
-        qd = np.asarray(qd, dtype=np.float64)
+        q, qd = state_arrays(q, qd)
         if s0 is None:
             s0 = self.tables.projector.nearest(q).s if self.start == "nearest" else float(s_ref)
         if sigma0 is None:
@@ -742,8 +741,7 @@ class PassivityController:
         The compiled twin of :meth:`step_numpy` (:func:`agents.passivity_kernel.law_step`)."""
         if dt != self._checked_dt and dt > 0.0:
             self.check_rate(dt)
-        q = np.asarray(q, dtype=np.float64)
-        qd = np.asarray(qd, dtype=np.float64)
+        q, qd = state_arrays(q, qd)
         tau = np.empty(self.n)
         bias = self._zeros  # C(q, q̇)q̇ + g(q), read by the midpoint hold only
         if self.hold == "midpoint" and dt > 0.0:
@@ -761,7 +759,7 @@ class PassivityController:
         if dt != self._checked_dt and dt > 0.0:
             self.check_rate(dt)
         st = self.state
-        q, qd = np.asarray(q, dtype=np.float64), np.asarray(qd, dtype=np.float64)
+        q, qd = state_arrays(q, qd)
         n, hs = self.n, self._hold_state
         midpoint = self.hold == "midpoint" and dt > 0.0
         if midpoint and hs[0] > 0.5 and self.hold_filter_s > 0.0:  # b̂ ← b̂ + λ (error − b̂)
