@@ -358,3 +358,13 @@ def test_the_hold_is_not_biased_by_a_payload_the_model_does_not_know() -> None:
     assert rms["estimate"] <= 1.1 * rms["sample"], rms
     assert rms["model"] >= 1.3 * rms["estimate"], rms
     env.close()
+
+
+@pytest.mark.parametrize("value", [-0.1, float("nan"), float("inf")])
+def test_a_bad_hold_filter_time_constant_is_refused_at_construction(value: float) -> None:
+    """``hold_filter_s`` must be a finite time constant ≥ 0 (0: no model-error estimate)."""
+    _, model, tables, ctx, _ = _storage_setup(1000.0)
+    gains = passivity.gains_from_rates(ctx, None, tables)
+    with pytest.raises(ValueError, match="hold_filter_s must be >= 0"):
+        PassivityController(model, tables, gains, hold_filter_s=value)
+    assert PassivityController(model, tables, gains, hold_filter_s=0.0).hold_filter_s == 0.0
