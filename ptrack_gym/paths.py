@@ -25,7 +25,7 @@ from typing import NamedTuple, Protocol, runtime_checkable
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from ptrack_gym.errors import InvalidPathError
+from ptrack_gym.errors import InvalidConfigError, InvalidPathError
 from ptrack_gym.kernels import path as path_kernels
 from ptrack_gym.kernels.projection import nearest as nearest_kernel
 from ptrack_gym.robots.profile import EECircle, FloatArray, RobotProfile
@@ -386,7 +386,11 @@ class PathProjector:
         self.period_s = path.period_s
         self.grid_s = np.linspace(0.0, self.period_s, grid_size, endpoint=False)
         grid_q, grid_qd, _ = path.evaluate(self.grid_s)
-        self.grid_q = np.ascontiguousarray(grid_q)  # (N, n)
+        # Native float64 whatever the path returns (a user's path may answer in float16,
+        # longdouble or big-endian arrays, which the compiled search cannot take).
+        self.grid_q = np.ascontiguousarray(grid_q, dtype=np.float64)  # (N, n)
+        grid_qd = np.asarray(grid_qd, dtype=np.float64)
+        self.n = self.grid_q.shape[1]
         n_grid, stride = grid_size, self.STRIDE
         h = self.period_s / n_grid
         # Per grid interval j, the cubic Hermite interpolant of q_r through its exact end
@@ -394,7 +398,7 @@ class PathProjector:
         q0, q1 = self.grid_q, np.roll(self.grid_q, -1, axis=0)
         m0, m1 = h * grid_qd, h * np.roll(grid_qd, -1, axis=0)
         delta = q1 - q0
-        a = np.asarray(grid_qd, dtype=np.float64)
+        a = grid_qd
         b = (3.0 * delta - 2.0 * m0 - m1) / h**2
         c = (m0 + m1 - 2.0 * delta) / h**3
         self.h = h
@@ -411,10 +415,27 @@ class PathProjector:
         )  # (N, 6)
 
     def nearest(self, q: FloatArray) -> NearestPoint:
-        """The point of the path nearest ``q`` (rad): the compiled twin
-        (:func:`ptrack_gym.kernels.projection.nearest`) of :meth:`nearest_numpy`."""
-        s, d = nearest_kernel(np.asarray(q, dtype=np.float64), *self.kernel_args)
+        """The point of the path nearest ``q`` (rad, n real numbers of any dtype or byte
+        order): the compiled twin (:func:`ptrack_gym.kernels.projection.nearest`) of
+        :meth:`nearest_numpy`.
+
+        Raises:
+            InvalidConfigError: ``q`` is not n real numbers (the kernel reads n entries).
+        """
+        s, d = nearest_kernel(self._joint_vectors(q, 1), *self.kernel_args)
         return NearestPoint(s=s, distance=d)
+
+    def _joint_vectors(self, q: FloatArray, ndim: int) -> FloatArray:
+        """``q`` as native, contiguous float64 of shape (n,) (``ndim`` 1) or (T, n)
+        (``ndim`` 2), or :class:`InvalidConfigError`."""
+        arr = np.asarray(q)
+        if arr.ndim != ndim or arr.shape[-1] != self.n or arr.dtype.kind not in "fiu":
+            want = f"({self.n},)" if ndim == 1 else f"(T, {self.n})"
+            raise InvalidConfigError(
+                f"q must be real numbers of shape {want}, got shape {arr.shape} and dtype "
+                f"{arr.dtype}"
+            )
+        return np.ascontiguousarray(arr, dtype=np.float64)
 
     @property
     def kernel_args(self) -> tuple[object, ...]:
@@ -480,5 +501,6 @@ class PathProjector:
 
     def nearest_many(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
         """For each row of q (T, n): (d_k, s_k) of :meth:`nearest`."""
-        out = [self.nearest(qk) for qk in np.asarray(q, dtype=np.float64)]
-        return np.array([o.distance for o in out]), np.array([o.s for o in out])
+        args = self.kernel_args
+        out = [nearest_kernel(qk, *args) for qk in self._joint_vectors(q, 2)]
+        return np.array([d for _, d in out]), np.array([s for s, _ in out])

@@ -17,6 +17,8 @@ import numpy as np
 from gymnasium import spaces
 
 from ptrack_gym.envs.rewards import KernelReward
+from ptrack_gym.errors import InvalidActionError, InvalidConfigError
+from ptrack_gym.kernels import DISPATCH_ERRORS
 from ptrack_gym.kernels import task as task_kernels
 from ptrack_gym.paths import PathProjector, ReferencePath
 from ptrack_gym.robots.model import RobotModel
@@ -101,7 +103,10 @@ class TrackingTask:
         not, or ``unstable`` says the caller found it unusable already (it sanitises before
         sensing when sensors must see a finite state), ``info["unstable"]`` is True and the
         reward is −``unstable_penalty``. Measured arrays that are the true ones (no sensing
-        disturbance) are sanitised with them.
+        disturbance) are sanitised with them. The arrays may be of any real dtype or byte
+        order (those the kernel cannot take are cast to float64, the sanitised state copied
+        back); shapes other than (n,) raise :class:`InvalidConfigError` there
+        (:class:`InvalidActionError` for the action).
         """
         if self._tables is None:
             return self.observe_numpy(
@@ -110,9 +115,12 @@ class TrackingTask:
             )  # fmt: skip
         obs = np.empty(6 * self.n + 2, dtype=np.float32)
         flat, layout = self._tables
-        stable = task_kernels.observe(
-            q, qd, q_meas, qd_meas, s_ref, action, flat, layout, obs, self._scalars
-        )
+        try:
+            stable = task_kernels.observe(
+                q, qd, q_meas, qd_meas, s_ref, action, flat, layout, obs, self._scalars
+            )
+        except DISPATCH_ERRORS:  # a dtype or byte order the kernel cannot take
+            stable = self._observe_float64(q, qd, q_meas, qd_meas, s_ref, action, obs)
         unstable = unstable or not stable
         dist, s_star, err, r_path, r_time, r_effort = self._scalars[:6].tolist()
         info: dict[str, Any] = {
@@ -136,6 +144,46 @@ class TrackingTask:
         reward = -self.unstable_penalty if unstable else r_path + r_time + r_effort
         return obs, reward, info
 
+    def _observe_float64(
+        self,
+        q: FloatArray,
+        qd: FloatArray,
+        q_meas: FloatArray,
+        qd_meas: FloatArray,
+        s_ref: float,
+        action: FloatArray,
+        obs: np.ndarray,
+    ) -> bool:
+        """The kernel of :meth:`observe` on native float64 copies of its arrays (a measured
+        array that is the true one stays the same copy); the sanitised (q, q̇) is copied
+        back, so the in-place contract holds for any dtype."""
+        q64, qd64 = self._float64(q, "q"), self._float64(qd, "qd")
+        qm64 = q64 if q_meas is q else self._float64(q_meas, "q_meas")
+        qdm64 = qd64 if qd_meas is qd else self._float64(qd_meas, "qd_meas")
+        a64 = self._float64(action, "action", InvalidActionError)
+        flat, layout = self._tables  # type: ignore[misc]
+        stable = task_kernels.observe(
+            q64, qd64, qm64, qdm64, s_ref, a64, flat, layout, obs, self._scalars
+        )
+        if not stable:
+            q[...], qd[...] = q64, qd64
+        return stable
+
+    def _float64(
+        self, x: FloatArray, name: str, error: type[ValueError] = InvalidConfigError
+    ) -> FloatArray:
+        """``x`` as a writable, native, contiguous float64 array of shape (n,), or
+        ``error`` naming it."""
+        arr = np.asarray(x)
+        if arr.shape != (self.n,) or arr.dtype.kind not in "fiu":
+            raise error(
+                f"{name} must be real numbers of shape ({self.n},), got shape {arr.shape} "
+                f"and dtype {arr.dtype}"
+            )
+        with np.errstate(over="ignore"):  # a longdouble beyond float64 is ±inf (unusable)
+            out = np.ascontiguousarray(arr, dtype=np.float64)
+        return out if out.flags.writeable else out.copy()
+
     def _kernel_reward(self, info: dict[str, Any], q: FloatArray, tau_nm: FloatArray) -> float:
         """The kernel reward (0 when unstable); replaces the info's reward terms."""
         assert self.kernel is not None
@@ -147,8 +195,16 @@ class TrackingTask:
 
     def sanitize(self, q: FloatArray, qd: FloatArray) -> bool:
         """Whether (q, q̇) is usable (finite q, |q̇| ≤ v_max); if not, made finite in place
-        (compiled twin of :meth:`sanitize_numpy`)."""
-        return task_kernels.sanitize(q, qd, self.max_speed_rad_s)
+        (compiled twin of :meth:`sanitize_numpy`). Any real dtype or byte order (cast to
+        float64 where the kernel cannot take it, the result copied back)."""
+        try:
+            return task_kernels.sanitize(q, qd, self.max_speed_rad_s)
+        except DISPATCH_ERRORS:  # a dtype or byte order the kernel cannot take
+            q64, qd64 = self._float64(q, "q"), self._float64(qd, "qd")
+            stable = task_kernels.sanitize(q64, qd64, self.max_speed_rad_s)
+            if not stable:
+                q[...], qd[...] = q64, qd64
+            return stable
 
     def sanitize_numpy(self, q: FloatArray, qd: FloatArray) -> bool:
         """The readable reference of :meth:`sanitize`: usable iff max|q̇| ≤ v_max (a NaN

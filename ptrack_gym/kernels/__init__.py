@@ -22,6 +22,13 @@ from numpy.typing import NDArray
 
 F = TypeVar("F", bound=Callable[..., Any])
 
+#: What calling a kernel raises for arguments it has no compiled version for and cannot
+#: compile one: numba types no float16 (``NotImplementedError``), longdouble or non-native
+#: byte order, and a kernel may need one float width throughout (``TypingError``, a
+#: ``NumbaError``). A caller taking user arrays on its hot path catches these (a ``try``
+#: costs nothing when nothing is raised) and retries on native float64 copies.
+DISPATCH_ERRORS: tuple[type[Exception], ...] = (numba.core.errors.NumbaError, NotImplementedError)
+
 
 def kernel(fn: F) -> F:
     """``numba.njit`` with the package's settings: cached on disk, no fast-math (IEEE
@@ -65,4 +72,4 @@ def view3(flat: NDArray[np.float64], layout: NDArray[np.int64], k: int) -> NDArr
     return flat[o : o + d0 * d1 * d2].reshape((d0, d1, d2))
 
 
-__all__ = ["kernel", "pack", "view1", "view2", "view3"]
+__all__ = ["DISPATCH_ERRORS", "kernel", "pack", "view1", "view2", "view3"]

@@ -144,7 +144,7 @@ class PinocchioModel:
 
     def kinetic_energy(self, q: FloatArray, qd: FloatArray) -> float:
         """½ q̇ᵀ M(q) q̇ (J)."""
-        qd = np.asarray(qd, dtype=np.float64)
+        qd = np.ascontiguousarray(qd, dtype=np.float64)
         return 0.5 * float(qd @ self.mass_matrix(q) @ qd)
 
     def metric_norms2(self, q: FloatArray, v: FloatArray) -> FloatArray:
@@ -152,8 +152,10 @@ class PinocchioModel:
         one CRBA per row, bypassing the one-entry cache (for whole trajectories)."""
         q = np.ascontiguousarray(q, dtype=np.float64)
         v = np.ascontiguousarray(v, dtype=np.float64)
-        if q.shape != v.shape:
-            raise ValueError(f"q and v must have the same shape, got {q.shape} and {v.shape}")
+        if q.shape != v.shape or q.ndim != 2 or q.shape[1] != self.n:
+            raise ValueError(
+                f"q and v must have the same shape (T, {self.n}), got {q.shape} and {v.shape}"
+            )
         pin, model, data = self._pin, self._model, self._data
         uppers = np.empty((q.shape[0], self.n, self.n))
         for k, qk in enumerate(q):
@@ -219,6 +221,7 @@ class BulletModel:
 
     def kinetic_energy(self, q: FloatArray, qd: FloatArray) -> float:
         """½ q̇ᵀ M(q) q̇ (J)."""
+        qd = np.ascontiguousarray(qd, dtype=np.float64)
         return 0.5 * float(qd @ self._arm.mass_matrix(q) @ qd)
 
     def close(self) -> None:
