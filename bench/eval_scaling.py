@@ -13,16 +13,16 @@ part of what a user waits for. Each count runs ``--repeats`` times, the counts a
 of the small sweep on this 2-core VM spread by ±3% (its 2-worker speed-up 1.77–1.87 in
 five runs of one worker count each).
 
-Every sweep is a fresh ``python -m train.evaluate`` process, as a user runs it (interpreter
+Every sweep is a fresh ``ptrack evaluate`` process, as a user runs it (interpreter
 start and imports included, nothing warm from an earlier sweep). Counts above 1 are timed
 once per ``--start-methods`` entry (default: ``fork`` — what ``start_method: auto`` picks
-for that command on Linux, Python >= 3.11: :func:`train.sweep.start_method` — and
+for that command on Linux, Python >= 3.11: :func:`train.evaluation.sweep.start_method` — and
 ``spawn``), so the two ways of starting the workers are compared in the same run; a second
 table gives what one worker costs before its first episode under each (in a fresh process
 that has imported what the CLI imports and run no episode, ``--repeats`` times).
 
 Run: ``python bench/eval_scaling.py [--seeds 24] [--episode-s 8] [--repeats 3]
-[--max-workers N] [--start-methods fork spawn] [--config train/configs/main.yml]``
+[--max-workers N] [--start-methods fork spawn] [--config train/configs/evaluate/main.yml]``
 (``--config``: that sweep instead, plots off).
 """
 
@@ -38,9 +38,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from train.evaluate import load_config
-from train.sweep import _finish
-from train.threads import ONE_THREAD_VARS
+from train.common.threads import ONE_THREAD_VARS
+from train.evaluation.config import load_config
+from train.evaluation.sweep import _finish
 
 
 def worker_counts(cores: int) -> list[int]:
@@ -61,7 +61,7 @@ def sweep_seconds(
     config: Path | None = None,
     method: str = "auto",
 ) -> tuple[float, float, int]:
-    """Wall time (s) of ``python -m train.evaluate`` running the benchmark sweep (or the
+    """Wall time (s) of ``ptrack evaluate`` running the benchmark sweep (or the
     sweep of ``config``, without plots) with ``workers`` processes started by ``method``,
     in a fresh process as a user runs it (interpreter start and imports included, nothing
     warm from an earlier run); the time (s) of its serial tail (summary, bootstrap
@@ -82,7 +82,7 @@ def sweep_seconds(
     ]
     overrides = run if config is not None else [*small, *run]
     cfg = load_config(config, overrides)
-    argv = [sys.executable, "-m", "train.evaluate", "--no-progress"]
+    argv = [sys.executable, "-m", "train.evaluation.config", "--no-progress"]
     if config is not None:
         argv += ["--config", str(config)]
     for item in overrides:
@@ -97,9 +97,9 @@ def sweep_seconds(
 
 _START_PROBE = """
 import sys, time
-from train.episode import run_episode
-from train.evaluate import load_config
-from train.sweep import _worker_pool
+from train.evaluation.episode import run_episode
+from train.evaluation.config import load_config
+from train.evaluation.sweep import _worker_pool
 cfg = load_config(None, ["episode_s=0.1", "plots=false", "seeds=1"])
 task, settings = cfg.tasks()[0], cfg.settings()
 t0 = time.perf_counter()

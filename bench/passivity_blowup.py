@@ -2,7 +2,7 @@
 same push (issue 17).
 
 Takes a worst case the adversarial search found for ``passivity_paper`` (``worst.yml`` of
-``python -m train.adversary``; an unstable one if there is one), replays it for
+``ptrack adversary``; an unstable one if there is one), replays it for
 ``passivity_paper`` and for ``passivity`` (the default: τ_r⁰ scaled into the actuator box)
 with the gains the search used, and records per control step: σ̇, the storage E of the law,
 the largest commanded |τ_j|/τ_max,j (the law's output, before the env's clip) and applied
@@ -69,7 +69,9 @@ def trace(env_id: str, controller: str, gains: Any, spec: dict, reset_seed: int,
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--worst", type=Path, required=True, help="worst.yml of train.adversary")
+    ap.add_argument(
+        "--worst", type=Path, required=True, help="worst.yml of train.studies.adversary"
+    )
     ap.add_argument("--energy", type=float, default=2.0, help="the energy (J) of the case")
     ap.add_argument("--figure", type=Path, help="write the figure here")
     args = ap.parse_args()

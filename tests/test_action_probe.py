@@ -1,6 +1,8 @@
-"""``python -m train.action_probe``: how much of its authority a trained policy uses."""
+"""``ptrack probe-actions``: how much of its authority a trained policy uses."""
 
 from __future__ import annotations
+
+import functools
 
 import pytest
 
@@ -12,8 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from train.action_probe import ActionUsage, action_usage, main
-from train.train import main as train_main
+from train.cli import run_command as _run_command
+from train.studies.action_probe import ActionUsage, action_usage, main
+
+train_main = functools.partial(_run_command, "train")
 
 
 def test_statistics_of_a_known_action_array() -> None:
@@ -38,7 +42,7 @@ def _train(out: Path, extra: list[str]) -> Path:
     train_main(
         [*extra, "--algo", "sac", "--steps", "200", "--out", str(out), "--seed", "0",
          "--episode-s", "0.2", "--eval-freq", "0", "--checkpoint-freq", "0",
-         "--set", "learning_starts=50", "--set", "policy_kwargs=dict(net_arch=[16])"]
+         "--hp", "learning_starts=50", "--hp", "policy_kwargs=dict(net_arch=[16])"]
     )  # fmt: skip
     return out
 

@@ -18,15 +18,8 @@ import torch
 from stable_baselines3 import PPO, SAC, TD3
 
 import ptrack_gym  # noqa: F401  (registers the envs)
-from train.train import (
-    ActorWarmupCallback,
-    TrainConfig,
-    TrainConfigError,
-    actor_bc_loss,
-    add_actor_bc,
-    parse_args,
-    validate,
-)
+from train.rl.actor import ActorWarmupCallback, actor_bc_loss, add_actor_bc
+from train.rl.config import TrainConfig, TrainConfigError, parse_args, validate
 
 
 def _filled(cls: type, **kwargs: object) -> SAC | TD3:

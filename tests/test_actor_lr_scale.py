@@ -18,7 +18,8 @@ import torch
 from stable_baselines3 import PPO, SAC
 
 import ptrack_gym  # noqa: F401  (registers the envs)
-from train.train import TrainConfig, TrainConfigError, parse_args, scale_actor_lr, validate
+from train.rl.actor import scale_actor_lr
+from train.rl.config import TrainConfig, TrainConfigError, parse_args, validate
 
 
 def _filled_sac() -> SAC:

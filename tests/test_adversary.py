@@ -1,4 +1,4 @@
-"""The adversarial disturbance search (``python -m train.adversary``) on a tiny budget: it
+"""The adversarial disturbance search (``ptrack adversary``) on a tiny budget: it
 finds a worse push than the median random one, a found worst case replays bit-identically
 from its spec, a search resumes, and bad input is refused before any episode runs."""
 
@@ -13,7 +13,8 @@ import pandas as pd
 import yaml
 
 from ptrack_gym.errors import InvalidConfigError
-from train.adversary import AdversaryConfig, load_config, main, replay, run_search
+from train.cli import run_command
+from train.studies.adversary import AdversaryConfig, load_config, replay, run_search
 
 #: Two-link, short episodes: impulses in [0.2, 0.6] s, cost over the 0.5 s after.
 TINY = [
@@ -25,6 +26,11 @@ TINY = [
     "popsize=4",
     "workers=2",
 ]
+
+
+def main(argv: list[str]) -> int:
+    """``ptrack adversary`` with ``argv``."""
+    return run_command("adversary", argv)
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +76,7 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
     shutil.copytree(search, out)
     with pytest.raises(InvalidConfigError, match="--resume"):
         run_search(load_config(None, [*TINY, "budget=20", f"out={out}"]), progress=False)
-    with pytest.raises(InvalidConfigError, match="different search"):
+    with pytest.raises(InvalidConfigError, match="different settings"):
         run_search(load_config(None, [*TINY, "budget=20", "seed=3", f"out={out}"]), resume=True)
     run_search(load_config(None, [*TINY, "budget=20", f"out={out}"]), resume=True, progress=False)
     df = pd.read_csv(out / "trials.csv", float_precision="round_trip")
@@ -131,6 +137,6 @@ def test_tuned_gains_that_do_not_exist_are_refused_before_any_episode(
 
 
 def test_unknown_config_keys_are_refused() -> None:
-    with pytest.raises(InvalidConfigError, match="unknown config key"):
+    with pytest.raises(InvalidConfigError, match=r"unknown field\(s\) \['budjet'\]"):
         load_config(None, ["budjet=3"])
     assert isinstance(load_config(None, []), AdversaryConfig)

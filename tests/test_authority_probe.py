@@ -1,4 +1,4 @@
-"""``python -m train.authority_probe``: the hand-made residual is paired with its base, is
+"""``ptrack probe-authority``: the hand-made residual is paired with its base, is
 its base at zero authority and inside its gate's deadband, and acts otherwise."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from ptrack_gym.errors import InvalidConfigError
-from train.authority_probe import main, probe
+from train.studies.authority_probe import main, probe
 
 TWO_LINK = "ptrack_gym/TwoLinkTrack-v0"
 SHORT = {"control_hz": 250.0, "episode_s": 1.0, "seeds": [3, 4]}

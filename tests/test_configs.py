@@ -9,30 +9,33 @@ import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-CONFIGS = sorted((ROOT / "train" / "configs").glob("*.yml"))
+CONFIGS = sorted((ROOT / "train" / "configs").glob("*/*.yml"))
 
 
-def _loader(name: str):
-    if name.startswith("tune_"):
+def _loader(path: Path):
+    """The loader of the command whose folder holds the config (its schema)."""
+    kind, name = path.parent.name, path.stem
+    if kind == "tune":
         pytest.importorskip("optuna", reason="the 'tune' extra")
-        from train.tune import load_config
+        from train.studies.tune import load_config
 
         return lambda p: load_config(p, []).validate()
-    if name.startswith("adversary_"):
+    if kind == "adversary":
         pytest.importorskip("optuna", reason="the 'tune' extra")
-        from train.adversary import load_config
+        from train.studies.adversary import load_config
 
         return lambda p: load_config(p, []).validate()
-    if name.startswith("rates"):  # the control-rate studies (train.rates)
-        from train.rates import load_config
+    if kind == "rates":  # the control-rate studies (train.studies.rates)
+        from train.studies.rates import load_config
 
         return lambda p: load_config(p, []).validate()
-    if name.startswith("rl_"):  # the RL studies (train.rl_campaign)
+    if kind == "campaign":  # the RL studies (train.rl.campaign)
         pytest.importorskip("stable_baselines3", reason="training needs the 'train' extra")
-        from train.rl_campaign import validate_campaign
+        from train.rl.campaign import validate_campaign
 
         return validate_campaign
-    text = (ROOT / "train" / "configs" / f"{name}.yml").read_text()
+    assert kind == "evaluate", f"{path}: configs live in train/configs/<command>/"
+    text = path.read_text()
     if "sb3:" in text:
         pytest.importorskip("stable_baselines3", reason="a trained model needs the 'train' extra")
     raw = yaml.safe_load(text)
@@ -45,7 +48,7 @@ def _loader(name: str):
     local = [run for run in entrants if run.parts[0] == "runs"]  # not shipped models
     if any(not (ROOT / run).is_dir() for run in local):
         pytest.skip(f"{name} evaluates local training runs (runs/, made by its make target)")
-    from train.evaluate import load_config
+    from train.evaluation.config import load_config
 
     return lambda p: load_config(p, [])  # validates
 
@@ -53,13 +56,13 @@ def _loader(name: str):
 @pytest.mark.parametrize("path", CONFIGS, ids=[p.stem for p in CONFIGS])
 def test_shipped_config_validates(path: Path, monkeypatch) -> None:
     monkeypatch.chdir(ROOT)  # configs name repository paths
-    _loader(path.stem)(path)
+    _loader(path)(path)
 
 
 def test_the_main_job_compares_tuned_gains_on_enough_seeds() -> None:
-    from train.evaluate import load_config
+    from train.evaluation.config import load_config
 
-    cfg = load_config(ROOT / "train/configs/main.yml", [])
+    cfg = load_config(ROOT / "train/configs/evaluate/main.yml", [])
     assert cfg.gains == "tuned" and cfg.seeds >= 20
     assert {"passivity", "passivity_paper"} <= set(cfg.controllers)
     # an impulse ends by the top of its onset range + 50 ms: >= 3 s of recovery is measured

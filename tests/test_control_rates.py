@@ -27,7 +27,7 @@ from ptrack_gym.errors import ControlRateError
 from ptrack_gym.paths import random_multisine
 from ptrack_gym.robots import robot_profile
 from ptrack_gym.robots.two_link import TwoLinkAnalyticModel
-from train.episode import EpisodeSettings, Task, rollout, run_episode
+from train.evaluation.episode import EpisodeSettings, Task, rollout, run_episode
 
 ROBOTS = ("two_link", "iiwa", "xarm6", "panda")
 #: Random admissible paths of these tests (seeds the measurements in the docs do not use).
@@ -336,7 +336,7 @@ def test_the_hold_is_not_biased_by_a_payload_the_model_does_not_know() -> None:
     model's acceleration error estimate b̂ the midpoint hold tracks as the sample hold does
     (within 10%); predicting the acceleration with the nominal model alone (T_b = 0) it is
     ≥ 1.3× worse (measured on 8 seeds: 1.54e-2, 1.55e-2 and 2.26e-2 rad)."""
-    from train.envs import env_kwargs
+    from train.evaluation.envs import env_kwargs
 
     env = gym.make("ptrack_gym/IiwaTrack-v0", **env_kwargs(1000.0, 8000, "on_path", "payload:1.0"))
     ctx = ControlContext.from_env(env)

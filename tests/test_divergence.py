@@ -16,7 +16,7 @@ from agents import ControllerPolicy, make_controller
 from agents.residual import ResidualWrapper
 from ptrack_gym.errors import ControllerDivergedError, PtrackError
 from ptrack_gym.metrics import episode_metrics
-from train.episode import rollout
+from train.evaluation.episode import rollout
 
 ENV = "ptrack_gym/TwoLinkTrack-v0"
 

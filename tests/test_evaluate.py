@@ -4,6 +4,7 @@ the refusal of corrupt results files and bad configs."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import shutil
 import sys
@@ -19,11 +20,13 @@ import ptrack_gym  # noqa: F401
 from agents.policy import ControllerPolicy
 from agents.registry import make_controller
 from ptrack_gym.errors import InvalidConfigError
-from train import sweep
-from train.episode import run_episode
-from train.evaluate import load_config, main
-from train.results import COLUMNS, CorruptResultsError, read_episodes
-from train.sweep import _finish, _run_processes, run_sweep
+from train.cli import run_command
+from train.common import runs
+from train.evaluation import sweep
+from train.evaluation.config import load_config
+from train.evaluation.episode import Task, run_episode
+from train.evaluation.results import COLUMNS, CorruptResultsError, read_episodes
+from train.evaluation.sweep import _run_processes, finish, run_sweep
 
 TINY = [
     "env_id=ptrack_gym/TwoLinkTrack-v0",
@@ -35,6 +38,11 @@ TINY = [
     "bootstrap_resamples=200",
     "reference=computed_torque",
 ]
+
+
+def main(argv: list[str]) -> int:
+    """``ptrack evaluate`` with ``argv``."""
+    return run_command("evaluate", argv)
 
 
 def tiny(tmp_path, name, *extra):
@@ -190,32 +198,32 @@ def test_auto_start_method_forks_only_where_a_fork_is_safe(monkeypatch) -> None:
     """ "auto" forks on Linux (Python >= 3.11) in a single-threaded process without torch or
     JAX; a second thread, an imported torch/JAX, Python 3.10 or another platform make it
     spawn; an explicit method is kept."""
-    for name in sweep._FORK_UNSAFE_MODULES:
+    for name in runs.FORK_UNSAFE_MODULES:
         monkeypatch.delitem(sys.modules, name, raising=False)
     monkeypatch.setattr(sys, "platform", "linux")
-    real_thread_count = sweep._thread_count
+    real_thread_count = runs._thread_count
     # Earlier tests may leave a thread behind (tqdm's monitor): count this one alone.
-    monkeypatch.setattr(sweep, "_thread_count", lambda: 1)
-    assert sweep.start_method("auto") == "fork"
-    assert sweep.start_method("spawn") == "spawn"
+    monkeypatch.setattr(runs, "_thread_count", lambda: 1)
+    assert runs.start_method("auto") == "fork"
+    assert runs.start_method("spawn") == "spawn"
     for name in ("torch", "jax"):
         with monkeypatch.context() as m:
             m.setitem(sys.modules, name, types.ModuleType(name))
-            assert sweep.start_method("auto") == "spawn"
-            assert sweep.start_method("fork") == "fork"
+            assert runs.start_method("auto") == "spawn"
+            assert runs.start_method("fork") == "fork"
     with monkeypatch.context() as m:
         m.setattr(sys, "platform", "darwin")
-        assert sweep.start_method("auto") == "spawn"
+        assert runs.start_method("auto") == "spawn"
     with monkeypatch.context() as m:  # 3.10's fork pools may fork after their own thread
         m.setattr(sys, "version_info", (3, 10, 13, "final", 0))
-        assert sweep.start_method("auto") == "spawn"
+        assert runs.start_method("auto") == "spawn"
     release = threading.Event()
     other = threading.Thread(target=release.wait)
     other.start()
-    monkeypatch.setattr(sweep, "_thread_count", real_thread_count)
+    monkeypatch.setattr(runs, "_thread_count", real_thread_count)
     try:
-        assert sweep._thread_count() >= 2
-        assert sweep.start_method("auto") == "spawn"
+        assert runs._thread_count() >= 2
+        assert runs.start_method("auto") == "spawn"
     finally:
         release.set()
         other.join()
@@ -226,13 +234,13 @@ def test_forked_workers_start_with_the_pool_before_any_other_thread() -> None:
     """A fork pool forks its workers when it is made (its first submit), so a thread this
     process starts afterwards (the local runner, tqdm's monitor) is never copied into a
     half-held state; a spawn pool starts its workers on the first task."""
-    forked = sweep._worker_pool(2, "fork")
+    forked = runs.worker_pool(2, "fork")
     try:
         assert len(forked._processes) == 2
         assert set(forked.map(_pid, range(8))) <= set(forked._processes)
     finally:
         forked.shutdown()
-    spawned = sweep._worker_pool(1, "spawn")
+    spawned = runs.worker_pool(1, "spawn")
     try:
         assert len(spawned._processes) == 0
     finally:
@@ -266,7 +274,7 @@ def test_summary_and_report_do_not_depend_on_the_order_episodes_finished(
         folder = tmp_path / name
         folder.mkdir()
         frame.to_csv(folder / "episodes.csv", index=False, float_format="%.17g", na_rep="nan")
-        _finish(tiny(tmp_path, name, "seeds=6", "plots=false"), folder, show=False)
+        finish(tiny(tmp_path, name, "seeds=6", "plots=false"), folder, show=False)
         outputs[name] = {f: (folder / f).read_bytes() for f in ("summary.csv", "report.md")}
         assert not list(folder.glob("*.png"))  # plots=false: no figure, nor the aggregate's
         assert b"## Aggregate over conditions" in outputs[name]["report.md"]
@@ -325,7 +333,14 @@ def test_corrupt_results_are_refused(full_run, tmp_path, mutate, match) -> None:
 def test_bad_config_is_refused_before_running(tmp_path, override, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
         main(
-            ["--config", "train/configs/main.yml", "--set", override, "--out", str(tmp_path / "x")]
+            [
+                "--config",
+                "train/configs/evaluate/main.yml",
+                "--set",
+                override,
+                "--out",
+                str(tmp_path / "x"),
+            ]
         )
     assert exc.value.code == 2
     assert not (tmp_path / "x" / "episodes.csv").exists()
@@ -338,11 +353,11 @@ def test_a_sweep_on_another_path_runs_every_entrant_on_that_path(monkeypatch) ->
     from pathlib import Path
 
     pytest.importorskip("stable_baselines3", reason="the optional 'train' extra is not installed")
-    from train.episode import _sb3_env_and_policy
+    from train.evaluation.episode import _sb3_env_and_policy
 
     monkeypatch.chdir(Path(__file__).resolve().parents[1])
     cfg = load_config(
-        Path("train/configs/main_rl.yml"), ["episode_s=0.4", "path=random", "path_seed=3"]
+        Path("train/configs/evaluate/main_rl.yml"), ["episode_s=0.4", "path=random", "path_seed=3"]
     )
     settings = cfg.settings()
     default = dataclasses.replace(settings, path="default", path_seed=None)
@@ -352,7 +367,7 @@ def test_a_sweep_on_another_path_runs_every_entrant_on_that_path(monkeypatch) ->
     ).unwrapped.path
     for s in (0.0, 0.7, 1.9):
         np.testing.assert_array_equal(env.unwrapped.path.evaluate(s)[0], reference.evaluate(s)[0])
-    task = sweep.Task("pd_gravity", "none", 0.0, 0, 0)
+    task = Task("pd_gravity", "none", 0.0, 0, 0)
     row, _ = run_episode(task, settings)
     row_default, _ = run_episode(task, default)
     assert row["path_dist_rms"] != row_default["path_dist_rms"]
@@ -395,18 +410,20 @@ def test_paired_controllers_meet_identical_disturbances() -> None:
 
 
 def test_a_trained_residual_model_is_evaluated_like_a_controller(tmp_path) -> None:
-    """``sb3:<run folder>`` runs a model of ``train.train`` in the sweep (a 200-step SAC
+    """``sb3:<run folder>`` runs a model of ``train.rl.run`` in the sweep (a 200-step SAC
     residual on passivity: what it learned is irrelevant here, the plumbing is not)."""
     pytest.importorskip(
         "stable_baselines3", reason="the optional 'train' extra (SB3, torch) is not installed"
     )
-    from train.train import main as train_main
+    from train.cli import run_command as _run_command
+
+    train_main = functools.partial(_run_command, "train")
 
     run_dir = tmp_path / "sac_res"
     train_main(
         ["--algo", "sac", "--residual", "passivity", "--steps", "200", "--out", str(run_dir),
          "--episode-s", "0.2", "--eval-freq", "0", "--checkpoint-freq", "100",
-         "--set", "learning_starts=50", "--set", "policy_kwargs=dict(net_arch=[16])"]
+         "--hp", "learning_starts=50", "--hp", "policy_kwargs=dict(net_arch=[16])"]
     )  # fmt: skip
     final, early, latest = f"sb3:{run_dir}", f"sb3:{run_dir}@100", f"sb3:{run_dir}@200"
     controllers = f"controllers=[computed_torque, {final}, {early}, {latest}]"
@@ -446,7 +463,7 @@ def test_resume_refuses_a_different_sweep(full_run, tmp_path) -> None:
 def test_every_preset_runs_in_an_episode() -> None:
     """Each preset's schedule has what the metrics read (a push has a duration, ...)."""
     from ptrack_gym.disturbances import PRESETS
-    from train.episode import EpisodeSettings, Task, run_episode
+    from train.evaluation.episode import EpisodeSettings, Task, run_episode
 
     settings = EpisodeSettings("ptrack_gym/TwoLinkTrack-v0", 0.05, 1000.0, "on_path", 0.5, 0.01)
     for preset in PRESETS:
@@ -455,7 +472,7 @@ def test_every_preset_runs_in_an_episode() -> None:
 
 
 def test_recovery_median_counts_episodes_that_never_recovered() -> None:
-    from train.results import summarize
+    from train.evaluation.results import summarize
 
     rows = pd.DataFrame(
         {

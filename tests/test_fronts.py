@@ -1,4 +1,4 @@
-"""Error-vs-effort fronts (``train.fronts``): the front is the non-dominated set and falls
+"""Error-vs-effort fronts (``train.studies.fronts``): the front is the non-dominated set and falls
 monotonically, the common-effort reading interpolates on it and never extrapolates, and a
 tiny sweep runs, resumes after a cut line and refuses bad input."""
 
@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from ptrack_gym.errors import InvalidConfigError
-from train.fronts import FrontConfig, common_effort_table, error_at, pareto_front, run_fronts
+from train.common.statistics import pareto_front
+from train.studies.fronts import FrontConfig, common_effort_table, error_at, run_fronts
 
 
 def test_front_keeps_exactly_the_non_dominated_points_by_rising_effort():

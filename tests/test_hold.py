@@ -4,6 +4,7 @@ mid-hold, and bad values are refused."""
 
 from __future__ import annotations
 
+import functools
 import itertools
 
 import gymnasium as gym
@@ -114,7 +115,7 @@ def test_bad_decision_periods_are_refused(make_env, k: object) -> None:
 
 def test_train_config_checks_the_decision_period(tmp_path) -> None:
     pytest.importorskip("stable_baselines3", reason="the optional 'train' extra")
-    from train.train import TrainConfig, TrainConfigError, validate
+    from train.rl.config import TrainConfig, TrainConfigError, validate
 
     with pytest.raises(TrainConfigError, match="decision_every"):
         validate(TrainConfig(out=str(tmp_path / "a"), decision_every=0))
@@ -131,13 +132,15 @@ def test_a_run_trains_on_decisions_and_is_evaluated_holding_them(tmp_path) -> No
     pytest.importorskip("stable_baselines3", reason="the optional 'train' extra")
     import pandas as pd
 
-    from train.episode import EpisodeSettings, Task, _sb3_env_and_policy, run_episode
-    from train.train import main
+    from train.cli import run_command as _run_command
+    from train.evaluation.episode import EpisodeSettings, Task, _sb3_env_and_policy, run_episode
+
+    main = functools.partial(_run_command, "train")
 
     out = tmp_path / "run"
     main(["--algo", "sac", "--residual", "passivity", "--steps", "60", "--out", str(out),
           "--episode-s", "0.2", "--eval-freq", "0", "--decision-every", "5", "--zero-init-residual",
-          "--set", "learning_starts=20", "--set", "policy_kwargs=dict(net_arch=[16])"])  # fmt: skip
+          "--hp", "learning_starts=20", "--hp", "policy_kwargs=dict(net_arch=[16])"])  # fmt: skip
     monitor = pd.read_csv(next(out.glob("monitor/*/*.monitor.csv")), skiprows=1)
     assert (monitor["l"] == 10).all() and len(monitor) == 6
     settings = EpisodeSettings(

@@ -1,5 +1,5 @@
-"""``train.imitation``: DAgger of a model-based controller into a pure SAC actor, the pull
-toward the expert's labels during RL, and their options in ``train.train``."""
+"""``train.rl.imitation``: DAgger of a model-based controller into a pure SAC actor, the pull
+toward the expert's labels during RL, and their options in ``train.rl.run``."""
 
 from __future__ import annotations
 
@@ -21,7 +21,8 @@ from stable_baselines3.common.vec_env import VecNormalize
 import ptrack_gym  # noqa: F401  (registers the envs)
 from agents.policy import ControllerPolicy
 from agents.registry import make_controller
-from train.imitation import (
+from train.rl.config import TrainConfig, TrainConfigError, parse_args, validate
+from train.rl.imitation import (
     DEMO_STATS_FILE,
     LABEL_BOUND,
     DaggerSpec,
@@ -32,7 +33,7 @@ from train.imitation import (
     deterministic_action,
     load_demonstrations,
 )
-from train.train import TrainConfig, TrainConfigError, parse_args, run, validate
+from train.rl.run import run
 
 STEPS = 500  # 2-s TwoLink episodes at 250 Hz
 
@@ -191,8 +192,8 @@ def _fast(out: Path, *extra: str) -> list[str]:
         "--eval-freq", "0", "--imitate", "pd_gravity", "--imitate-steps", "800",
         "--imitate-round-steps", "400", "--imitate-rounds", "1",
         "--init-log-std", "-6", "--critic-warmup-steps", "100",
-        "--set", "learning_starts=0", "--set", "batch_size=32", "--set", "buffer_size=1000",
-        "--set", "policy_kwargs=dict(net_arch=[32, 32])", *extra,
+        "--hp", "learning_starts=0", "--hp", "batch_size=32", "--hp", "buffer_size=1000",
+        "--hp", "policy_kwargs=dict(net_arch=[32, 32])", *extra,
     ]  # fmt: skip
 
 
@@ -243,7 +244,7 @@ def test_a_run_with_imitation_saves_the_demonstrations_and_the_imitation_as_step
 def test_resume_reapplies_the_pull_from_the_saved_demonstrations(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import train.train as train_module
+    import train.rl.run as train_module
 
     out = tmp_path / "r"
     run(parse_args(_fast(out, "--demo-bc-weight", "2")))
@@ -307,7 +308,7 @@ def test_bad_imitation_options_raise_before_anything_runs(tmp_path: Path, fields
 def test_an_interruption_during_the_imitation_lets_the_same_command_start_over(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import train.train as train_module
+    import train.rl.run as train_module
 
     out = tmp_path / "r"
 

@@ -24,7 +24,7 @@ from agents.network import load_network_controller
 from agents.policy import ControllerPolicy
 from agents.residual import make_residual_env
 from ptrack_gym.errors import InvalidConfigError
-from train.train import TrainConfig, TrainConfigError, validate
+from train.rl.config import TrainConfig, TrainConfigError, validate
 
 TWO_LINK = "ptrack_gym/TwoLinkTrack-v0"
 SHORT = {"control_hz": 250.0, "max_episode_steps": 150, "start": "rest_near_path"}
@@ -155,7 +155,7 @@ def test_bad_network_bases_are_refused(make_env, tmp_path: Path) -> None:
 
 
 def test_train_config_validates_the_network_base(tmp_path: Path) -> None:
-    """``train.train`` refuses a network base without a model, a model without a network
+    """``train.rl.run`` refuses a network base without a model, a model without a network
     base, and accepts the pair."""
     _save_pure_model(tmp_path / "pure")
     with pytest.raises(TrainConfigError, match="needs base_model"):

@@ -186,7 +186,7 @@ def test_policy_adapter_runs_an_episode_through_evaluate_policy() -> None:
 # -- the saturation-aware remedy (not in the paper) -------------------------------------
 
 #: Pushes of 2 J that an adversarial search found to blow up the paper's law on the iiwa
-#: (``python -m train.adversary``, reset seed 0): onset (s) and joint-velocity direction.
+#: (``ptrack adversary``, reset seed 0): onset (s) and joint-velocity direction.
 BLOW_UP_PUSHES = [
     (1.278404778952063, (0.3956932142474212, 0.729523524597288, -0.770449352174601,
                          0.21192535627735976, 0.0800063718368702, 0.7054902906771687,
@@ -202,7 +202,7 @@ def _push_episode(spec: dict, paper: bool, hold: str) -> tuple[bool, float]:
     default, with the given ``hold``) from reset seed 0 under the push ``spec``, at 1 kHz."""
     from agents import passivity
     from agents.base import ControlContext
-    from train.episode import rollout
+    from train.evaluation.episode import rollout
 
     episode_s = spec["onset_s"] + 1.6
     env = gym.make("ptrack_gym/IiwaTrack-v0", disturbance=spec, horizon_s=episode_s,

@@ -1,4 +1,4 @@
-"""The control-rate study (``python -m train.rates``): its config is checked before any
+"""The control-rate study (``ptrack rates``): its config is checked before any
 episode, it writes, resumes and refuses like the other studies, a refused rate is a failed
 row, and its verdict applies the stated rule."""
 
@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 
 from ptrack_gym.errors import ControlRateError, InvalidConfigError
-from train import rates
-from train.rates import RatesConfig, load_frame, run_study, verdict_table
+from train.studies import rates
+from train.studies.rates import RatesConfig, load_frame, run_study, verdict_table
 
 
 def _tiny(out: Path, **kw) -> RatesConfig:
@@ -54,7 +54,7 @@ def test_a_study_writes_resumes_and_refuses_to_overwrite(tmp_path) -> None:
         run_study(cfg, progress=False)
     run_study(cfg, resume=True, progress=False)  # nothing left to run
     assert len(load_frame(out / "episodes.csv")) == 4
-    with pytest.raises(InvalidConfigError, match=r"different study \(\['episode_s'\]\)"):
+    with pytest.raises(InvalidConfigError, match="different settings: episode_s"):
         run_study(_tiny(out, episode_s=0.4), resume=True, progress=False)
 
 

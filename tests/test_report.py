@@ -1,5 +1,5 @@
-"""The generated verdict (``train.report``) on constructed results: a difference the seeds
-cannot resolve is marked unresolved, a clear one is marked, the Bonferroni adjustment
+"""The generated verdict (:mod:`train.evaluation.report`) on constructed results: a difference
+the seeds cannot resolve is marked unresolved, a clear one is marked, the Bonferroni adjustment
 un-resolves what only an unadjusted interval would resolve, and the tail metric is the
 mean of the worst episodes."""
 
@@ -11,12 +11,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from train.report import (
+from train.common.statistics import cvar, paired_comparisons
+from train.evaluation.report import (
     aggregate,
     condition_table,
-    cvar,
     normalized_scores,
-    paired_comparisons,
     verdict_paragraph,
     worst_case_section,
     worst_case_sentence,
@@ -166,7 +165,7 @@ def test_stratified_bootstrap_equals_rliable_bit_for_bit(shape):
     pytest.importorskip("rliable", reason="the optional 'report' extra (the reference)")
     from rliable import metrics as rlm
 
-    from train.report import iqm_and_mean, performance_profile, stratified_bootstrap
+    from train.common.statistics import iqm_and_mean, performance_profile, stratified_bootstrap
 
     x = np.random.default_rng(sum(shape)).standard_normal(shape) * np.linspace(0.5, 2, shape[1])
     taus = np.linspace(-2.0, 2.0, 41)
@@ -182,7 +181,7 @@ def test_stratified_bootstrap_equals_rliable_bit_for_bit(shape):
 
 
 def test_stratified_bootstrap_resamples_runs_within_each_task():
-    from train.report import iqm_and_mean, stratified_bootstrap
+    from train.common.statistics import iqm_and_mean, stratified_bootstrap
 
     # Every run equal within a task: any resample of runs within tasks is x itself, so the
     # interval collapses to the point (a bootstrap mixing tasks would not).

@@ -71,7 +71,7 @@ def test_deadband_gate_runs_bit_identical_to_the_base_while_on_the_path(base: st
     """With d₀ above the base's undisturbed path distance, whatever the policy outputs
     (here random full-authority actions) the episode is the base's, bit for bit: whole
     5-s episodes from several start phases, with the 2-mrad deadband of
-    train/configs/rl_deadband_two_link.yml."""
+    train/configs/campaign/rl_deadband_two_link.yml."""
     rng = np.random.default_rng(3)
     kw = {**KW, "max_episode_steps": 1250}
     actions = rng.uniform(-1.0, 1.0, (1250, 2))

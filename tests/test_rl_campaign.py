@@ -1,4 +1,4 @@
-"""``python -m train.rl_campaign``: the study's runs from its YAML, what is skipped,
+"""``ptrack campaign``: the study's runs from its YAML, what is skipped,
 resumed or started, and a tiny campaign end to end (then interrupted and completed)."""
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from pathlib import Path
 
 import yaml
 
-from train.checkpoints import latest_checkpoint
-from train.hyperparameters import TrainConfigError
-from train.rl_campaign import load_campaign, main, plan, validate_campaign
-from train.train import parse_args
+from train.rl.campaign import load_campaign, main, plan, validate_campaign
+from train.rl.checkpoints import latest_checkpoint
+from train.rl.config import parse_args
+from train.rl.hyperparameters import TrainConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -59,7 +59,9 @@ def write(tmp_path: Path, data: dict) -> Path:
 
 
 def test_the_packaged_study_loads_with_equal_budgets() -> None:
-    runs = load_campaign(ROOT / "train/configs/rl_study_two_link.yml", Path("/nonexistent"))
+    runs = load_campaign(
+        ROOT / "train/configs/campaign/rl_study_two_link.yml", Path("/nonexistent")
+    )
     assert len(runs) == 20 and len({r.steps for r in runs}) == 1
     assert {r.seed for r in runs} == {0, 1, 2, 3, 4}
     assert {r.residual for r in runs} == {"none", "passivity", "computed_torque"}
@@ -72,7 +74,7 @@ def test_the_packaged_study_loads_with_equal_budgets() -> None:
     "name", ["rl_study_two_link", "rl_ablation_two_link", "rl_deadband_two_link"]
 )
 def test_every_packaged_campaign_validates(name: str) -> None:
-    assert validate_campaign(ROOT / f"train/configs/{name}.yml") >= 10
+    assert validate_campaign(ROOT / f"train/configs/campaign/{name}.yml") >= 10
 
 
 def test_groups_merge_overrides_key_by_key(tmp_path: Path) -> None:
@@ -116,8 +118,9 @@ def test_campaign_trains_skips_and_resumes(tmp_path: Path) -> None:
     assert latest_checkpoint(Path(runs[3].out))[0] == 120
     lines = (Path(runs[3].out) / "command.txt").read_text().splitlines()
     assert len(lines) == 2
-    # each line is the standalone train.train command of its invocation
-    first, second = (parse_args(shlex.split(line)[3:]) for line in lines)
+    # each line is the standalone `ptrack train` command of its invocation
+    assert all(shlex.split(line)[:2] == ["ptrack", "train"] for line in lines)
+    first, second = (parse_args(shlex.split(line)[2:]) for line in lines)
     assert first == runs[3] and second == plan_of_resume
 
 
@@ -145,7 +148,7 @@ def test_sigterm_to_the_campaign_stops_its_workers_and_each_run_saves(tmp_path: 
     long["common"] = {**TINY["common"], "steps": 1_000_000, "checkpoint_freq": 100}
     study, out = write(tmp_path, long), tmp_path / "out"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "train.rl_campaign", "--config", str(study), "--out", str(out),
+        [sys.executable, "-m", "train.rl.campaign", "--config", str(study), "--out", str(out),
          "--workers", "1"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip

@@ -1,7 +1,9 @@
-"""``python -m train.rl_study``: learning curves from the checkpoints of a multi-seed
+"""``ptrack study``: learning curves from the checkpoints of a multi-seed
 study (tiny runs: what they learned is irrelevant here, the plumbing is not)."""
 
 from __future__ import annotations
+
+import functools
 
 import pytest
 
@@ -16,8 +18,10 @@ import pandas as pd
 import yaml
 
 from ptrack_gym.errors import InvalidConfigError
-from train.rl_study import discover, main, sweep_config
-from train.train import main as train_main
+from train.cli import run_command as _run_command
+from train.rl.study import discover, main, sweep_config
+
+train_main = functools.partial(_run_command, "train")
 
 
 def _train(out: Path, residual: str, seed: int) -> None:
@@ -26,7 +30,7 @@ def _train(out: Path, residual: str, seed: int) -> None:
         [*zero_init, "--algo", "sac", "--residual", residual, "--steps", "200", "--out", str(out),
          "--seed", str(seed), "--disturbance", "impulse:1.0", "--episode-s", "0.2",
          "--eval-freq", "100", "--eval-episodes", "1", "--checkpoint-freq", "100",
-         "--set", "learning_starts=50", "--set", "policy_kwargs=dict(net_arch=[16])"]
+         "--hp", "learning_starts=50", "--hp", "policy_kwargs=dict(net_arch=[16])"]
     )  # fmt: skip
 
 
@@ -111,8 +115,8 @@ def test_a_run_written_before_a_key_existed_groups_with_its_default(
 
 
 def test_the_group_key_defaults_are_train_configs() -> None:
-    from train.rl_study import GROUP_KEY_DEFAULTS, GROUP_KEYS, SHARED_KEY_DEFAULTS
-    from train.train import TrainConfig
+    from train.rl.config import TrainConfig
+    from train.rl.study import GROUP_KEY_DEFAULTS, GROUP_KEYS, SHARED_KEY_DEFAULTS
 
     defaults = TrainConfig(out="")
     assert set(GROUP_KEY_DEFAULTS) == set(GROUP_KEYS)
@@ -127,7 +131,7 @@ def test_a_folder_without_finished_runs_is_refused(tmp_path: Path) -> None:
 
 def test_a_normalized_run_without_its_statistics_is_refused(study: Path, tmp_path: Path) -> None:
     """Evaluating a VecNormalize run on raw observations would be silently wrong."""
-    from train.episode import EpisodeSettings, Task, run_episode
+    from train.evaluation.episode import EpisodeSettings, Task, run_episode
 
     run = tmp_path / "run"
     shutil.copytree(study / "residual-passivity_s0", run)
@@ -187,7 +191,7 @@ def test_residuals_over_tuned_bases_are_compared_with_the_tuned_controllers(
     assert sweep_config(discover(study), 2, tmp_path / "out", 1).gains == "default"
     # and each residual is evaluated over the tuned base it trained with
     from agents.registry import make_controller
-    from train.episode import _sb3_env_and_policy
+    from train.evaluation.episode import _sb3_env_and_policy
 
     entry = next(c for c in curves.controllers if "residual-passivity_s1" in c)
     env, _ = _sb3_env_and_policy(entry, curves.settings(), "none", 0.0)  # the cache owns env
@@ -206,7 +210,7 @@ def test_a_pure_run_that_imitated_a_controller_is_compared_with_that_expert(
 ) -> None:
     """``imitate``: its reference is the expert (not PD + gravity) at the expert's gains;
     an expert's gains that differ from the residuals' bases' are refused."""
-    from train.rl_study import reference_of
+    from train.rl.study import reference_of
 
     root = tmp_path / "imitating"
     shutil.copytree(study / "pure_s0", root / "pure_s0")
@@ -230,7 +234,7 @@ def test_a_residual_over_a_network_is_compared_with_that_network(
 ) -> None:
     """A network base's reference is its model (``sb3:<base_model>``, a reference alone, not
     a checkpoint of the study) at the gains of the controller it imitated."""
-    from train.rl_study import is_checkpoint_entry, reference_of
+    from train.rl.study import is_checkpoint_entry, reference_of
 
     base = tmp_path / "imitation"
     shutil.copytree(study / "pure_s0", base)
@@ -253,7 +257,7 @@ def test_a_residual_over_a_network_is_compared_with_that_network(
 
 
 def test_thinning_keeps_multiples_and_the_last_checkpoint(study: Path) -> None:
-    from train.rl_study import thin
+    from train.rl.study import thin
 
     runs = discover(study)
     assert [r.checkpoints for r in thin(runs, 200)] == [(200,)] * 3
@@ -263,7 +267,7 @@ def test_thinning_keeps_multiples_and_the_last_checkpoint(study: Path) -> None:
 
 
 def test_campaign_folder_names_are_the_groups(study: Path, tmp_path: Path) -> None:
-    """``<group>_s<seed>`` folders (train.rl_campaign's) keep the campaign's group names,
+    """``<group>_s<seed>`` folders (train.rl.campaign's) keep the campaign's group names,
     so two groups on one base with different safeguards stay apart."""
     root = tmp_path / "named"
     for name, penalty in (("res-a_s0", 0.0), ("res-b_s0", 0.2)):
@@ -284,7 +288,7 @@ def test_a_deadband_run_is_evaluated_with_its_deadband(
     """The evaluation env is built with the run's gate and deadband — from its training
     config, or from a deploy.yml put beside a run trained without one: undisturbed, the
     deadband-gated residual's episode has exactly its base's metrics."""
-    from train.episode import EpisodeSettings, Task, run_episode
+    from train.evaluation.episode import EpisodeSettings, Task, run_episode
 
     run = tmp_path / "deadband"
     shutil.copytree(study / "residual-passivity_s0", run)
@@ -313,7 +317,7 @@ def test_a_deadband_run_is_evaluated_with_its_deadband(
 def test_a_run_is_evaluated_with_its_acceleration_authority(study: Path, tmp_path: Path) -> None:
     """The evaluation env takes the run's scale_accel_rad_s2: at α = 0 the residual has no
     authority, so the run's episode is its base's, metric for metric (the run itself acts)."""
-    from train.episode import EpisodeSettings, Task, run_episode
+    from train.evaluation.episode import EpisodeSettings, Task, run_episode
 
     run = tmp_path / "accel0"
     shutil.copytree(study / "residual-passivity_s0", run)
@@ -347,7 +351,7 @@ def test_a_run_is_evaluated_with_its_acceleration_authority(study: Path, tmp_pat
 def test_a_bad_deploy_file_is_named_before_anything_runs(
     study: Path, tmp_path: Path, run: str, text: str, match: str
 ) -> None:
-    from train.sb3_runs import check_sb3_run, deploy_safeguards
+    from train.evaluation.policies import check_sb3_run, deploy_safeguards
 
     folder = tmp_path / run
     shutil.copytree(study / run, folder)
@@ -362,7 +366,7 @@ def test_samples_to_reach_says_an_imitating_runs_steps_are_rl_steps_only(
 ) -> None:
     import json
 
-    from train.rl_study import samples_to_reach
+    from train.rl.study import samples_to_reach
 
     root = tmp_path / "imitating"
     shutil.copytree(study / "pure_s0", root / "pure_s0")

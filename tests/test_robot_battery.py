@@ -30,7 +30,7 @@ from ptrack_gym.paths import (
     random_multisine,
 )
 from ptrack_gym.robots import ROBOTS, BulletModel, PinocchioModel, robot_profile
-from train.episode import EpisodeSettings, Task, run_episode
+from train.evaluation.episode import EpisodeSettings, Task, run_episode
 
 
 @pytest.fixture(scope="module", params=sorted(ROBOTS))

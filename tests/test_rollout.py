@@ -17,7 +17,7 @@ from agents import CONTROLLER_NAMES, ControllerPolicy, make_controller
 from agents.residual import make_residual_env
 from ptrack_gym.metrics import episode_metrics
 from tests.test_divergence import Diverging
-from train.episode import _lean_limit, rollout
+from train.evaluation.episode import _lean_limit, rollout
 
 ENV = "ptrack_gym/TwoLinkTrack-v0"
 

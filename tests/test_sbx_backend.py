@@ -14,7 +14,8 @@ pytest.importorskip(
     "stable_baselines3", reason="the optional 'train' extra (SB3, torch) is not installed"
 )
 
-from train.train import TrainConfigError, parse_args, run, validate
+from train.rl.config import TrainConfigError, parse_args, validate
+from train.rl.run import run
 
 FAST = [
     "learning_starts=50",
@@ -26,7 +27,7 @@ FAST = [
 
 def argv(out: Path, algo: str, residual: str, steps: int, *extra: str) -> list[str]:
     """0.2-s TwoLink episodes at 250 Hz (50 steps), tiny nets, the sbx backend."""
-    sets = [x for s in FAST for x in ("--set", s)]
+    sets = [x for s in FAST for x in ("--hp", s)]
     return [
         "--backend", "sbx", "--algo", algo, "--residual", residual, "--steps", str(steps),
         "--out", str(out), "--episode-s", "0.2", "--eval-freq", "100", "--eval-episodes", "1",
@@ -39,7 +40,7 @@ def test_sbx_run_saves_reloads_as_the_evaluation_does_and_resumes(
     tmp_path: Path, algo: str, residual: str
 ) -> None:
     sbx = pytest.importorskip("sbx", reason="the optional 'sbx' extra (sbx-rl, JAX)")
-    from train.sb3_runs import load_sb3_policy
+    from train.evaluation.policies import load_sb3_policy
 
     out = tmp_path / "run"
     first = run(parse_args(argv(out, algo, residual, 200, "--disturbance", "impulse:0.5")))
@@ -81,16 +82,16 @@ def test_sbx_refuses_the_torch_only_safeguards(tmp_path: Path, extra: list[str])
 
 
 def test_sbx_without_its_extra_is_named_before_anything_runs(tmp_path: Path, monkeypatch) -> None:
-    import train.sb3_runs
+    import train.evaluation.policies
 
-    monkeypatch.setattr(train.sb3_runs, "sbx_available", lambda: False)
+    monkeypatch.setattr(train.evaluation.policies, "sbx_available", lambda: False)
     with pytest.raises(TrainConfigError, match="'sbx' extra"):
         validate(parse_args(argv(tmp_path / "x", "sac", "none", 100)))
     assert not (tmp_path / "x").exists()
 
 
 def test_unknown_backend_is_refused(tmp_path: Path) -> None:
-    from train.train import TrainConfig
+    from train.rl.config import TrainConfig
 
     with pytest.raises(TrainConfigError, match="unknown backend"):
         validate(TrainConfig(out=str(tmp_path / "x"), backend="jax"))

@@ -1,4 +1,4 @@
-"""``python -m train.train``: short SAC/TD3/PPO runs, pure and residual, in-process;
+"""``ptrack train``: short SAC/TD3/PPO runs, pure and residual, in-process;
 reloading, VecNormalize round-trips, resuming, and configuration errors before training.
 
 Every run is a few hundred steps of 0.2-s TwoLink episodes with tiny networks, so the
@@ -6,6 +6,8 @@ whole file stays well under a minute on a loaded 2-core machine.
 """
 
 from __future__ import annotations
+
+import functools
 
 import pytest
 
@@ -21,18 +23,12 @@ import yaml
 from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.vec_env import VecNormalize
 
-from train.train import (
-    ALGOS,
-    TrainConfig,
-    TrainConfigError,
-    build_env,
-    main,
-    parse_args,
-    parse_python_literal,
-    run,
-    validate,
-    zero_init_actor,
-)
+from train.cli import run_command as _run_command
+from train.rl.actor import zero_init_actor
+from train.rl.config import TrainConfig, TrainConfigError, parse_args, validate
+from train.rl.run import ALGOS, build_env, parse_python_literal, run
+
+main = functools.partial(_run_command, "train")
 
 #: Tiny, fast hyperparameters per algorithm (passed with --set).
 FAST = {
@@ -64,7 +60,7 @@ def argv(out: Path, algo: str, residual: str, steps: int, *extra: str) -> list[s
         "1",
         "--checkpoint-freq",
         "100",
-        *[x for s in sets for x in ("--set", s)],
+        *[x for s in sets for x in ("--hp", s)],
         *extra,
     ]
 
@@ -93,7 +89,7 @@ def test_short_run_saves_a_reloadable_model(tmp_path: Path, algo: str, residual:
     assert saved["config"]["residual"] == residual
     assert saved["derived"]["control_hz"] == 250.0
     assert saved["derived"]["max_episode_steps"] == 50
-    assert "train.train" in (out / "command.txt").read_text()
+    assert "train.rl.run" in (out / "command.txt").read_text()
 
     reloaded = ALGOS[algo].load(out / "model.zip", device="cpu")
     obs_dim = model.observation_space.shape[0]
@@ -144,7 +140,7 @@ def test_an_interrupted_run_saves_the_steps_it_took_and_resumes_from_them(
     interruption re-raised; --resume goes on from 140."""
     import gymnasium as gym
 
-    import train.train as tt
+    import train.rl.run as tt
 
     out = tmp_path / "run"
     main(argv(out, "sac", "passivity", 100, "--eval-freq", "0"))
@@ -178,7 +174,7 @@ def test_sigterm_is_an_interruption_while_a_run_trains_only() -> None:
     it the previous handler is back (an idle campaign worker exits quietly)."""
     import signal
 
-    from train.train import sigterm_as_interrupt
+    from train.rl.run import sigterm_as_interrupt
 
     previous = signal.getsignal(signal.SIGTERM)
     with pytest.raises(KeyboardInterrupt), sigterm_as_interrupt():
@@ -199,11 +195,11 @@ def test_sigterm_is_an_interruption_while_a_run_trains_only() -> None:
 @pytest.mark.parametrize(
     ("extra", "match"),
     [
-        (["--set", "learning_rat=1e-3"], "unknown hyperparameter"),
+        (["--hp", "learning_rat=1e-3"], "unknown hyperparameter"),
         (["--env", "ptrack_gym/NoSuchTrack-v0"], "unknown env id"),
         (["--disturbance", "earthquake"], "unknown disturbance preset"),
-        (["--set", "policy_kwargs=__import__('os').getcwd()"], "only dict"),
-        (["--set", "policy_kwargs=dict(net_arch=[os.sep])"], "not allowed"),
+        (["--hp", "policy_kwargs=__import__('os').getcwd()"], "only dict"),
+        (["--hp", "policy_kwargs=dict(net_arch=[os.sep])"], "not allowed"),
         (["--control-hz", "300"], "control_hz"),
         (["--reward-weights", "10", "-1", "0"], "reward_weights"),
         (["--reward-weights", "10", "nan", "0"], "reward_weights"),
@@ -219,7 +215,7 @@ def test_bad_config_raises_before_anything_is_written(
     assert not out.exists()
 
 
-@pytest.mark.parametrize("extra", [["--algo", "a2c"], ["--residual", "lqr"], ["--set", "novalue"]])
+@pytest.mark.parametrize("extra", [["--algo", "a2c"], ["--residual", "lqr"], ["--hp", "novalue"]])
 def test_bad_cli_arguments_exit_with_usage_error(tmp_path: Path, extra: list[str]) -> None:
     out = tmp_path / "run"
     with pytest.raises(SystemExit) as exc:
@@ -248,7 +244,7 @@ def test_hyperparameter_file_and_set_precedence(tmp_path: Path) -> None:
         "ptrack_gym/TwoLinkTrack-v0:\n  batch_size: 128\n"
     )
     cfg = parse_args(
-        ["--out", str(tmp_path / "r"), "--hyperparams", str(override), "--set", "batch_size=64"]
+        ["--out", str(tmp_path / "r"), "--hyperparams", str(override), "--hp", "batch_size=64"]
     )
     res = validate(cfg)
     assert res.algo_kwargs["gamma"] == 0.95
@@ -315,7 +311,7 @@ def test_critic_warmup_freezes_the_actor_and_zero_actor_runs_the_base(tmp_path: 
     learns (updates are made) while the actor stays exactly as initialised: zero mean, the
     ``--init-log-std`` head; its deterministic actions are exactly 0, so its episode is
     the base controller's, bit for bit. Without the warm-up the same run moves the actor."""
-    common = ["--zero-init-residual", "--init-log-std", "-3", "--set", "learning_starts=0"]
+    common = ["--zero-init-residual", "--init-log-std", "-3", "--hp", "learning_starts=0"]
     frozen = run(parse_args(argv(tmp_path / "f", "sac", "passivity", 120, *common,
                                  "--critic-warmup-steps", "500")))  # fmt: skip
     free = run(parse_args(argv(tmp_path / "u", "sac", "passivity", 120, *common)))
@@ -365,7 +361,7 @@ def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
         "prior_gain_per_rad": 0.0,
         "base_model": None,
     }
-    from train.train import _env_factory
+    from train.rl.run import _env_factory
 
     env = _env_factory(res, "none")()
     cfg = env.unwrapped.config
@@ -379,7 +375,7 @@ def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
 def test_tuned_base_gains_reach_the_training_env(tmp_path: Path) -> None:
     """--base-gains tuned: the residual corrects the base with agents/tuned's gains."""
     from agents.registry import make_controller
-    from train.train import _env_factory
+    from train.rl.run import _env_factory
 
     res = validate(
         parse_args(argv(tmp_path / "t", "sac", "passivity", 10, "--base-gains", "tuned"))
@@ -394,7 +390,7 @@ def test_tuned_base_gains_reach_the_training_env(tmp_path: Path) -> None:
 
 def test_control_prior_reaches_the_training_env(tmp_path: Path) -> None:
     """--prior-gain-per-rad: the wrapper adds the stiffness prior to the learned action."""
-    from train.train import _env_factory
+    from train.rl.run import _env_factory
 
     res = validate(
         parse_args(argv(tmp_path / "p", "sac", "passivity", 10, "--prior-gain-per-rad", "1000",
@@ -410,7 +406,7 @@ def test_control_prior_reaches_the_training_env(tmp_path: Path) -> None:
 
 def test_acceleration_authority_reaches_the_training_env(tmp_path: Path) -> None:
     """--scale-accel-rad-s2 replaces --scale-fraction: the wrapper's residual is M(q) α a."""
-    from train.train import _env_factory
+    from train.rl.run import _env_factory
 
     res = validate(
         parse_args(argv(tmp_path / "a", "sac", "computed_torque", 10,
@@ -462,7 +458,7 @@ def test_bad_safeguard_options_raise_before_anything_runs(tmp_path: Path, extra:
 
 
 def test_to_argv_round_trips_every_field(tmp_path: Path) -> None:
-    from train.train import to_argv
+    from train.rl.config import to_argv
 
     cfg = TrainConfig(
         out=str(tmp_path / "r"), algo="td3", backend="sbx", residual="computed_torque",

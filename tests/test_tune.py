@@ -1,4 +1,4 @@
-"""``python -m train.tune``: a tiny study runs, resumes, refuses seeds the test config uses,
+"""``ptrack tune``: a tiny study runs, resumes, refuses seeds the test config uses,
 and the gains it saves are the ones ``gains="tuned"`` builds."""
 
 from __future__ import annotations
@@ -15,9 +15,15 @@ import agents.registry as registry
 from agents import computed_torque, make_controller
 from agents.base import ControlContext
 from ptrack_gym.errors import InvalidConfigError
-from train.tune import TuneConfig, load_config, main, tune
+from train.cli import run_command
+from train.studies.tune import TuneConfig, load_config, tune
 
 ENV = "ptrack_gym/TwoLinkTrack-v0"
+
+
+def main(argv: list[str]) -> int:
+    """``ptrack tune`` with ``argv``."""
+    return run_command("tune", argv)
 
 
 def tiny(out: Path, **kw: object) -> TuneConfig:
@@ -57,7 +63,7 @@ def test_tiny_study_runs_resumes_and_its_saved_gains_load(tmp_path, monkeypatch)
 
     with pytest.raises(InvalidConfigError, match="--resume"):
         tune(tiny(out, trials=3), progress=False)
-    with pytest.raises(InvalidConfigError, match="different study"):
+    with pytest.raises(InvalidConfigError, match="different settings"):
         tune(tiny(out, trials=3, episode_s=2.0), resume=True, progress=False)
 
     best = tune(tiny(out, trials=3), resume=True, save_dir=saved, progress=False)
@@ -130,16 +136,16 @@ def test_bad_configs_fail_before_any_episode(tmp_path, field, value, match):
 def test_cli_refuses_unknown_keys(capsys):
     with pytest.raises(SystemExit):
         main(["--set", "trails=3"])
-    assert "unknown config key" in capsys.readouterr().err
-    with pytest.raises(InvalidConfigError, match="key=value"):
+    assert "unknown field(s) ['trails']" in capsys.readouterr().err
+    with pytest.raises(InvalidConfigError, match="field=value"):
         load_config(None, ["trials"])
 
 
 def test_episode_workers_reuse_envs_across_gains_and_keep_few(monkeypatch):
     # a tuning worker runs a new gain set every trial: the env it steps must not be built
     # (and kept) per gain set — that grew a worker by ~37 MB per episode until it was killed
-    from train import episode
-    from train.episode import EpisodeSettings, Task, run_episode
+    from train.evaluation import episode
+    from train.evaluation.episode import EpisodeSettings, Task, run_episode
 
     monkeypatch.setattr(episode, "CACHE_SIZE", 2)
     monkeypatch.setattr(episode, "_ENV_CACHE", type(episode._ENV_CACHE)())

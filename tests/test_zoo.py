@@ -92,7 +92,7 @@ def test_yaml_sections_are_complete_for_the_zoo(algo: str) -> None:
     """rl-zoo3 reads only an env's section when there is one; our loader merges it over
     ``default``. The sections' YAML merge (``<<: *default``) makes the two agree."""
     pytest.importorskip("stable_baselines3")
-    from train.hyperparameters import load_hyperparams
+    from train.rl.hyperparameters import load_hyperparams
 
     data = yaml.safe_load((ROOT / "train" / "hyperparams" / f"{algo}.yml").read_text())
     for env_id, section in data.items():

@@ -1,0 +1,322 @@
+"""``ptrack``: the command line of ptrack_gym, one sub-command per job.
+
+Every job that has a config dataclass takes ``--config FILE`` (YAML, keys = its fields),
+repeated ``--set field=value`` and one flag per field, generated from the dataclass
+(:mod:`train.common.arguments`: ``ptrack <command> --help`` lists the fields with their
+docstrings). SB3 hyperparameters of ``ptrack train`` come apart, under ``--hp key=value``.
+
+=================  =====================================================================
+``evaluate``       paired evaluation sweep (:class:`train.evaluation.config.EvalConfig`)
+``train``          one RL run (:class:`train.rl.config.TrainConfig`)
+``campaign``       many RL runs from one campaign file (:mod:`train.rl.campaign`)
+``study``          learning curves and final tables of a campaign (:mod:`train.rl.study`)
+``tune``           equal-budget gain tuning (:class:`train.studies.tune.TuneConfig`)
+``fronts``         error against effort (:class:`train.studies.fronts.FrontConfig`)
+``adversary``      adversarial disturbance search (:mod:`train.studies.adversary`)
+``replay``         re-run the worst cases a search found (its ``worst.yml``)
+``rates``          the control rate as a robustness axis (:class:`train.studies.rates.RatesConfig`)
+``report``         rewrite ``report.md`` of results folders from their episodes tables
+``probe-actions``  how much of its action range a trained policy uses
+``probe-authority``  whether a residual's authority can move the arm at all
+=================  =====================================================================
+
+A bad config or corrupt results folder exits with status 2 and one line saying what is
+wrong; an interrupted run exits with 130 after saving what it reached.
+"""
+
+from __future__ import annotations
+
+# One BLAS thread per process, set before numpy loads: the sweeps fork their workers from
+# a single-threaded process (train.common.runs.start_method).
+from train.common.threads import one_thread_defaults
+
+one_thread_defaults()
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+from collections.abc import Callable, Sequence  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from ptrack_gym.errors import PtrackError  # noqa: E402
+from train.common.arguments import add_config_arguments, config_from_args  # noqa: E402
+
+Runner = Callable[[argparse.Namespace, argparse.ArgumentParser], int]
+
+
+def _progress(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _resume(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--resume", action="store_true", help=f"continue the {what} in --out")
+
+
+# -- evaluate ------------------------------------------------------------------------------
+def _evaluate_parser(p: argparse.ArgumentParser) -> None:
+    from train.evaluation.config import EvalConfig
+
+    add_config_arguments(p, EvalConfig)
+    _resume(p, "interrupted sweep")
+    _progress(p)
+
+
+def _evaluate(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+    from train.evaluation.config import DEFAULT_CONFIG, EvalConfig
+    from train.evaluation.sweep import run_sweep
+
+    cfg = config_from_args(EvalConfig, args, defaults_file=DEFAULT_CONFIG)
+    run_sweep(cfg, resume=args.resume, progress=not args.no_progress)
+    return 0
+
+
+# -- train -----------------------------------------------------------------------------------
+def _train_parser(p: argparse.ArgumentParser) -> None:
+    from train.rl.config import add_arguments
+
+    add_arguments(p)
+
+
+def _train(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+    from train.rl.config import from_args
+    from train.rl.run import run, sigterm_as_interrupt
+
+    cfg = from_args(args)
+    with sigterm_as_interrupt():
+        result = run(cfg, args.words)
+    print(f"trained {result.num_timesteps} steps; run folder: {result.run_dir}")
+    return 0
+
+
+# -- studies ---------------------------------------------------------------------------------
+def _tune_parser(p: argparse.ArgumentParser) -> None:
+    from train.studies.tune import TuneConfig
+
+    add_config_arguments(p, TuneConfig)
+    _resume(p, "study")
+    p.add_argument("--save", action="store_true", help="write agents/tuned/<robot>-<c>.yml")
+    p.add_argument("--table", action="store_true", help="print the tuned gains and exit")
+    _progress(p)
+
+
+def _tune(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+    from agents.registry import TUNED_DIR
+    from train.studies.tune import TuneConfig, tune, tuned_table
+
+    if args.table:
+        print(tuned_table())
+        return 0
+    cfg = config_from_args(TuneConfig, args)
+    results = tune(cfg, args.resume, TUNED_DIR if args.save else None, not args.no_progress)
+    for controller, best in results.items():
+        print(f"{controller}: {best}")
+    return 0
+
+
+def _fronts_parser(p: argparse.ArgumentParser) -> None:
+    from train.studies.fronts import FrontConfig
+
+    add_config_arguments(p, FrontConfig)
+    _resume(p, "sweep")
+    _progress(p)
+
+
+def _fronts(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+    from train.studies.fronts import FrontConfig, run_fronts
+
+    run_fronts(config_from_args(FrontConfig, args), args.resume, not args.no_progress)
+    return 0
+
+
+def _adversary_parser(p: argparse.ArgumentParser) -> None:
+    from train.studies.adversary import AdversaryConfig
+
+    add_config_arguments(p, AdversaryConfig)
+    _resume(p, "studies")
+    _progress(p)
+
+
+def _adversary(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+    from train.studies.adversary import AdversaryConfig, run_search
+
+    run_search(config_from_args(AdversaryConfig, args), args.resume, not args.no_progress)
+    return 0
+
+
+def _replay_parser(p: argparse.ArgumentParser) -> None:
+    p.add_argument("worst", type=Path, help="a search's worst.yml")
+
+
+def _replay(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+    from train.studies.adversary import replay_all
+
+    for line in replay_all(args.worst):
+        print(line)
+    return 0
+
+
+def _rates_parser(p: argparse.ArgumentParser) -> None:
+    from train.studies.rates import RatesConfig
+
+    add_config_arguments(p, RatesConfig)
+    _resume(p, "study")
+    _progress(p)
+
+
+def _rates(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+    from train.studies.rates import RatesConfig, run_study
+
+    cfg = config_from_args(RatesConfig, args)
+    out = run_study(cfg, resume=args.resume, progress=not args.no_progress)
+    print((out / "report.md").read_text().split("## Where each controller holds")[-1])
+    return 0
+
+
+# -- report ----------------------------------------------------------------------------------
+def _report_parser(p: argparse.ArgumentParser) -> None:
+    p.add_argument("folders", nargs="+", type=Path, help="results folders (episodes.csv)")
+    p.add_argument("--no-rewrite", action="store_true", help="only print each folder's headline")
+
+
+def results_kind(folder: Path) -> str:
+    """ "evaluate" or "rates": which command wrote the results folder (its ``config.yml``).
+
+    Raises:
+        InvalidConfigError: the folder has no ``config.yml`` and ``episodes.csv`` of either.
+    """
+    import yaml
+
+    from ptrack_gym.errors import InvalidConfigError
+
+    saved = folder / "config.yml"
+    if not (saved.exists() and (folder / "episodes.csv").exists()):
+        raise InvalidConfigError(f"{folder}: no config.yml and episodes.csv of a sweep or study")
+    keys = set(yaml.safe_load(saved.read_text()) or {})
+    if "robots" in keys and "control_rates" in keys:
+        return "rates"
+    if {"env_id", "controllers", "disturbances"} <= keys:
+        return "evaluate"
+    raise InvalidConfigError(f"{saved}: neither an evaluation sweep's nor a rate study's")
+
+
+def _report(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+    import yaml
+
+    for folder in args.folders:
+        saved = yaml.safe_load((folder / "config.yml").read_text())
+        if results_kind(folder) == "rates":
+            from train.studies.rates import RatesConfig, write_report
+
+            cfg = RatesConfig(**{**saved, "out": str(folder)})
+            if not args.no_rewrite:
+                write_report(cfg, folder)
+            table = (folder / "report.md").read_text().split("## Where each controller holds")
+            print(f"{folder / 'report.md'}: where each controller holds{table[-1]}")
+        else:
+            from train.evaluation.config import EvalConfig
+            from train.evaluation.sweep import finish
+
+            cfg = EvalConfig(**{**saved, "out": str(folder), "video": False})
+            if not args.no_rewrite:
+                finish(cfg, folder, show=False)
+            print(f"{folder / 'report.md'}: mean {cfg.metric} (rad; bold: lowest)\n")
+            print(headline_of(folder, cfg.metric) + "\n")
+    return 0
+
+
+def headline_of(folder: Path, metric: str) -> str:
+    """The headline table of an evaluation results folder (its ``summary.csv``)."""
+    import pandas as pd
+
+    from train.evaluation.results import headline_table
+
+    return headline_table(pd.read_csv(folder / "summary.csv"), metric)
+
+
+# -- commands with their own argument lists -----------------------------------------------
+def _delegate(module: str) -> tuple[Callable[[argparse.ArgumentParser], None], Runner]:
+    """A command whose module parses its own arguments (``main(argv)``)."""
+
+    def own_arguments(p: argparse.ArgumentParser) -> None:
+        """The module's ``main`` parses the arguments (``--help`` is its own)."""
+
+    def run(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+        import importlib
+
+        result = importlib.import_module(module).main(args.argv)
+        return result if isinstance(result, int) else 0
+
+    return own_arguments, run
+
+
+COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Runner]] = {
+    "evaluate": ("paired evaluation sweep", _evaluate_parser, _evaluate),
+    "train": ("train one RL policy (SB3)", _train_parser, _train),
+    "campaign": ("train the runs of a campaign file", *_delegate("train.rl.campaign")),
+    "study": ("learning curves and final tables of RL runs", *_delegate("train.rl.study")),
+    "tune": ("equal-budget gain tuning (Optuna)", _tune_parser, _tune),
+    "fronts": ("error against effort fronts", _fronts_parser, _fronts),
+    "adversary": ("adversarial disturbance search", _adversary_parser, _adversary),
+    "replay": ("re-run the worst cases of a search", _replay_parser, _replay),
+    "rates": ("the control rate as a robustness axis", _rates_parser, _rates),
+    "report": ("rewrite and print results folders' reports", _report_parser, _report),
+    "probe-actions": (
+        "action usage of trained policies",
+        *_delegate("train.studies.action_probe"),
+    ),
+    "probe-authority": (
+        "authority of a residual over its base",
+        *_delegate("train.studies.authority_probe"),
+    ),
+}
+
+
+def build_parser(command: str) -> argparse.ArgumentParser:
+    """The parser of ``ptrack <command>``."""
+    summary, build, _ = COMMANDS[command]
+    parser = argparse.ArgumentParser(prog=f"ptrack {command}", description=summary)
+    build(parser)
+    return parser
+
+
+def _top_parser() -> argparse.ArgumentParser:
+    listing = "\n".join(f"  {name:<16} {summary}" for name, (summary, _, _) in COMMANDS.items())
+    parser = argparse.ArgumentParser(
+        prog="ptrack",
+        description=__doc__.splitlines()[0],
+        epilog=f"commands:\n{listing}\n\n'ptrack COMMAND --help' lists a command's options.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("command", choices=list(COMMANDS), metavar="COMMAND")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``ptrack`` with ``argv`` (default: the process's arguments); return the exit
+    status. A :class:`~ptrack_gym.errors.PtrackError` is a usage error (status 2, one line).
+    Only the command's own modules are imported (``ptrack --help`` stays quick)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] not in COMMANDS:
+        _top_parser().parse_args(argv[:1])  # prints the help, or the unknown command
+        return 2
+    command, words = argv[0], argv[1:]
+    _, build, run = COMMANDS[command]
+    parser = build_parser(command) if build.__name__ != "own_arguments" else None
+    if parser is None:  # the module parses its own arguments
+        return run(argparse.Namespace(argv=words), argparse.ArgumentParser(prog=command))
+    args = parser.parse_args(words)
+    args.words = words  # as typed: the provenance of a run (command.txt)
+    try:
+        return run(args, parser)
+    except PtrackError as exc:
+        parser.error(str(exc))
+    return 2  # not reached: parser.error exits
+
+
+def run_command(command: str, argv: Sequence[str] | None = None) -> int:
+    """``ptrack <command> <argv>``: the entry of ``python -m train.evaluate`` and
+    ``python -m train.train``."""
+    return main([command, *(sys.argv[1:] if argv is None else argv)])
+
+
+if __name__ == "__main__":
+    sys.exit(main())

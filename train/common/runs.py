@@ -1,0 +1,162 @@
+"""The run folder every job writes into, and the worker processes it runs episodes in.
+
+One harness for the evaluation sweep, the control-rate study, gain tuning, the fronts and
+the adversarial search:
+
+* :func:`open_run` — refuse to overwrite a folder that holds results unless ``--resume``;
+  on resume, refuse a config that differs in a field that changes results (the folder
+  would mix two experiments); then write the provenance: ``config.yml`` (the settings) and
+  ``command.txt`` (the command line as it was typed);
+* :func:`worker_pool` — ``n`` worker processes of one BLAS thread each, forked where a fork
+  is safe (:func:`start_method`), spawned elsewhere;
+* :func:`worker_count` — ``workers`` of a config, 0 meaning every core this process may use.
+
+Figures use matplotlib's headless Agg backend (:mod:`train.plots`).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import shlex
+import sys
+import threading
+from collections.abc import Collection, Mapping
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ptrack_gym.errors import InvalidConfigError
+from train.common.threads import one_thread_defaults
+
+#: Modules whose state does not survive a fork (thread pools, device handles): while one
+#: is imported, ``start_method("auto")`` spawns.
+FORK_UNSAFE_MODULES = ("torch", "jax", "tensorflow", "ray")
+
+CONFIG_FILE = "config.yml"
+COMMAND_FILE = "command.txt"
+
+
+@dataclass(frozen=True)
+class RunFolder:
+    """An opened run folder.
+
+    Attributes:
+        out: the folder.
+        results: the file whose content marks results there (``episodes.csv``,
+            ``points.csv``, ``optuna.journal``).
+        resumed: whether the folder already held results that this run continues.
+    """
+
+    out: Path
+    results: Path
+    resumed: bool
+
+
+def has_results(path: Path) -> bool:
+    """Whether ``path`` exists and is not empty."""
+    return path.exists() and path.stat().st_size > 0
+
+
+def open_run(
+    out: str | Path,
+    results: str,
+    settings: Mapping[str, Any],
+    *,
+    resume: bool,
+    free: Collection[str] = (),
+    saved_required: bool = True,
+) -> RunFolder:
+    """Open the run folder ``out`` for a job whose results go to ``out/results``.
+
+    Args:
+        out: the run folder (created if missing).
+        results: the results file's name inside ``out``.
+        settings: what ``config.yml`` records; on resume it is compared with the saved one.
+        resume: continue the results already there (else refuse to touch them).
+        free: settings a resume may change (they change no result: workers, the output
+            folder, a larger budget).
+        saved_required: on resume over existing results, a missing ``config.yml`` is an
+            error (it cannot be checked); ``False`` skips the check instead.
+
+    Raises:
+        InvalidConfigError: results exist and ``resume`` is false; or on resume the saved
+            settings differ in a field not in ``free`` (each named, old → new), or
+            ``config.yml`` is missing while ``saved_required``.
+    """
+    out = Path(out)
+    path = out / results
+    existing = has_results(path)
+    if existing and not resume:
+        raise InvalidConfigError(f"{path} exists: pass --resume to continue it, or another --out")
+    saved = out / CONFIG_FILE
+    if existing:
+        if saved.exists():
+            _check_same(yaml.safe_load(saved.read_text()) or {}, settings, free)
+        elif saved_required:
+            raise InvalidConfigError(
+                f"{saved} is missing: cannot check that --resume continues the same run"
+            )
+    out.mkdir(parents=True, exist_ok=True)
+    saved.write_text(yaml.safe_dump(dict(settings), sort_keys=False))
+    (out / COMMAND_FILE).write_text(shlex.join(getattr(sys, "orig_argv", sys.argv)) + "\n")
+    return RunFolder(out, path, existing)
+
+
+def _check_same(old: Mapping[str, Any], new: Mapping[str, Any], free: Collection[str]) -> None:
+    changed = sorted(k for k in new if k not in free and k in old and old[k] != new[k])
+    if changed:
+        diffs = ", ".join(f"{k} {old[k]!r} -> {new[k]!r}" for k in changed)
+        raise InvalidConfigError(f"--resume with different settings: {diffs}; use another --out")
+
+
+def worker_count(workers: int) -> int:
+    """``workers``, or every core this process may run on when it is 0."""
+    return workers or len(os.sched_getaffinity(0))
+
+
+def _thread_count() -> int:
+    """Threads of this process, native ones included (BLAS pools, tqdm's monitor, the
+    executors'): the entries of ``/proc/self/task`` on Linux, else the Python threads."""
+    try:
+        return len(os.listdir("/proc/self/task"))
+    except OSError:
+        return threading.active_count()
+
+
+def start_method(requested: str = "auto") -> str:
+    """The multiprocessing start method of the worker processes.
+
+    ``"auto"`` is ``"fork"`` where a fork is safe — Linux (macOS's system libraries are not
+    fork-safe, Windows has no fork), Python ≥ 3.11 (whose fork pools start every worker on
+    the first task), this process running a single thread (native threads counted, as
+    Python ≥ 3.12's own fork warning counts them: the ``ptrack`` entry points set one BLAS
+    thread before numpy loads), and none of :data:`FORK_UNSAFE_MODULES` imported — and
+    ``"spawn"`` elsewhere. A forked worker inherits this process's imported modules instead
+    of importing them again (``bench/eval_scaling.py`` times both). The start method never
+    changes an episode's numbers. Any other value is returned as it is."""
+    if requested != "auto":
+        return requested
+    safe = (
+        sys.platform.startswith("linux")
+        and sys.version_info >= (3, 11)
+        and _thread_count() == 1
+        and not any(name in sys.modules for name in FORK_UNSAFE_MODULES)
+    )
+    return "fork" if safe else "spawn"
+
+
+def worker_pool(processes: int, method: str = "auto") -> ProcessPoolExecutor:
+    """``processes`` worker processes of one thread each (the thread-count variables are
+    set to 1 unless the user set them; a forked worker keeps this process's), started by
+    ``start_method(method)``. Forked workers are started at once, while this process may
+    still be single-threaded; spawned ones start on the first task."""
+    one_thread_defaults()  # BLAS and torch read them when they load in a spawned worker
+    method = start_method(method)
+    pool = ProcessPoolExecutor(processes, mp_context=mp.get_context(method))
+    if method == "fork":  # the first submit forks every worker, before any other thread
+        pool.submit(int).result()
+    return pool

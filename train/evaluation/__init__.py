@@ -1,0 +1,1 @@
+"""Paired evaluation of controllers under the same random disturbances (``ptrack evaluate``)."""

@@ -1,0 +1,333 @@
+"""The generated verdict of an evaluation sweep: ``report.md`` in its results folder.
+
+What it holds, per condition (disturbance × level):
+
+* each controller's mean, IQM, **CVaR₁₀** (the mean of its worst 10% episodes,
+  :func:`cvar`) and failures on the sweep's metric;
+* each controller's **paired difference** to the reference (controller − reference, per
+  (seed, episode): the same start and the same disturbance draw), with a percentile-bootstrap
+  interval, and a mark: *better* or *worse* when the interval excludes 0, *unresolved* when
+  it does not.
+
+**Multiple comparisons.** A report makes K = (conditions) × (controllers − 1) comparisons.
+Its intervals are Bonferroni-adjusted: each is a (1 − α/K) interval, so with probability
+≥ 1 − α (α = 5%) every interval of the report covers its true difference at once, and the
+chance that any "resolved" mark is wrong is ≤ α. Bonferroni is conservative: a difference
+marked unresolved may be real but is not shown by these seeds.
+
+Then: a paragraph written from those marks (:func:`verdict_paragraph`), an aggregate over
+conditions in rliable's manner (IQM with stratified-bootstrap intervals and performance
+profiles of a per-condition normalised score; :func:`stratified_bootstrap`, vectorised and
+tested equal to rliable's bit for bit), and the
+worst-case table of the adversarial searches named in the config (``worst_case``), read
+from their ``summary.csv`` (``ptrack adversary``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from train.common.statistics import (
+    ALPHA,
+    PAIR_KEY,
+    cvar,
+    interval_estimates,
+    iqm,
+    iqm_and_mean,
+    paired_comparisons,
+)
+from train.plots.evaluation import aggregate_plot
+
+
+def condition_table(df: pd.DataFrame, metric: str) -> pd.DataFrame:
+    """Per condition × controller: episodes, mean, IQM, CVaR₁₀ and failures of ``metric``."""
+    rows = []
+    for (dist, level, ctrl), g in df.groupby(["disturbance", "level", "controller"], sort=True):
+        x = g[metric].to_numpy(float)
+        rows.append(
+            {
+                "disturbance": dist,
+                "level": float(level),
+                "controller": ctrl,
+                "n": len(x),
+                "mean": float(np.nanmean(x)),
+                "iqm": float(iqm(x[np.isfinite(x)])),
+                "cvar10": cvar(x),
+                "failures": int(g["failed"].sum()),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def _condition_name(dist: str, level: float) -> str:
+    return "undisturbed" if dist == "none" else f"{dist} {level:g}"
+
+
+def verdict_paragraph(
+    comparisons: pd.DataFrame, table: pd.DataFrame, reference: str, metric: str
+) -> str:
+    """One paragraph, written from the marks: per controller, where it is better than,
+    worse than or not resolved from the reference; which controller has the lowest mean and
+    the lowest CVaR₁₀ most often; and the failures."""
+    if comparisons.empty:
+        return f"Only {reference} was evaluated: there is nothing to compare."
+    k = int(comparisons["comparisons"].iloc[0])
+    conditions = comparisons[["disturbance", "level"]].drop_duplicates()
+    n_cond = len(conditions)
+    pairs = int(comparisons["pairs"].min())
+    parts = [
+        f"Against {reference}, over {n_cond} conditions with {pairs} paired episodes each "
+        f"({k} comparisons, Bonferroni-adjusted {100 * (1 - ALPHA):.0f}% simultaneous "
+        f"intervals on the paired difference of {metric}; lower is better):"
+    ]
+    for ctrl, g in comparisons.groupby("controller", sort=True):
+        counts = {m: g[g["mark"] == m] for m in ("better", "worse", "unresolved")}
+        pieces = []
+        for mark, word in (("better", "closer to the path"), ("worse", "farther from it")):
+            sub = counts[mark]
+            if len(sub):
+                names = ", ".join(
+                    _condition_name(d, lv)
+                    for d, lv in zip(sub["disturbance"], sub["level"], strict=True)
+                )
+                med = float(np.median(sub["ratio"]))
+                pieces.append(f"{word} in {len(sub)} ({names}; median ratio of means {med:.2g})")
+        pieces.append(f"not resolved in {len(counts['unresolved'])}")
+        parts.append(f"{ctrl} is " + ", ".join(pieces) + ".")
+    best_mean = table.loc[table.groupby(["disturbance", "level"])["mean"].idxmin(), "controller"]
+    best_tail = table.loc[table.groupby(["disturbance", "level"])["cvar10"].idxmin(), "controller"]
+    lead = best_mean.value_counts()
+    tail = best_tail.value_counts()
+    parts.append(
+        "Lowest mean: "
+        + ", ".join(f"{c} in {n}" for c, n in lead.items())
+        + " of the conditions; lowest CVaR₁₀ (worst 10% of episodes): "
+        + ", ".join(f"{c} in {n}" for c, n in tail.items())
+        + " (point estimates, not marks)."
+    )
+    failures = table.groupby("controller")["failures"].sum()
+    episodes = table.groupby("controller")["n"].sum()
+    failed = [f"{c} {int(failures[c])}/{int(episodes[c])}" for c in failures.index if failures[c]]
+    parts.append("Failed episodes: " + ("; ".join(failed) if failed else "none") + ".")
+    return " ".join(parts)
+
+
+def normalized_scores(df: pd.DataFrame, metric: str) -> tuple[dict[str, np.ndarray], list[str]]:
+    """rliable's score matrices (runs × tasks) per controller: a task is a condition, a run a
+    (seed, episode); score = log₁₀(m_c / x), x the episode's ``metric`` and m_c the median of
+    every controller's episodes in condition c — decades better than the field's median,
+    higher is better, comparable across conditions whose errors differ by decades."""
+    df = df.copy()
+    df["condition"] = [
+        _condition_name(d, lv) for d, lv in zip(df["disturbance"], df["level"], strict=True)
+    ]
+    tasks = sorted(df["condition"].unique())
+    median = df.groupby("condition")[metric].median()
+    floor = 1e-12  # a zero error (never seen) would be an infinite score
+    df["score"] = np.log10(
+        median.loc[df["condition"]].to_numpy() / np.maximum(df[metric].to_numpy(float), floor)
+    )
+    scores = {}
+    for ctrl, g in df.groupby("controller", sort=True):
+        wide = g.pivot_table(index=PAIR_KEY, columns="condition", values="score")
+        scores[ctrl] = wide.reindex(columns=tasks).to_numpy(float)
+    return scores, tasks
+
+
+def aggregate(
+    df: pd.DataFrame,
+    metric: str,
+    out: Path | None,
+    resamples: int = 2000,
+    seed: int = 0,
+    draw: Callable[..., Any] | None = None,
+) -> str:
+    """The rliable-style aggregate: IQM and mean of :func:`normalized_scores` with stratified
+    bootstrap 95% intervals (:func:`stratified_bootstrap`; a markdown table) and, with
+    ``out``, ``aggregate.png`` (the intervals and the performance profiles) — drawn by
+    ``draw(function, *args)`` when given (a sweep hands it to its worker processes), else
+    here. Each controller's resamples come from its own generator, derived from ``seed``."""
+    scores, tasks = normalized_scores(df, metric)
+    scores = {c: s for c, s in scores.items() if np.isfinite(s).all()}
+    if not scores:
+        return "Aggregate scores: no controller has every condition's episodes."
+    point, interval = interval_estimates(scores, iqm_and_mean, resamples, seed)
+    lines = [
+        f"Score = log₁₀(condition median / episode {metric}) over {len(tasks)} conditions "
+        "(higher is better; 1 = ten times closer to the path than the field's median); "
+        "stratified-bootstrap 95% intervals (rliable's method).",
+        "",
+        "| controller | IQM | IQM 95% CI | mean | mean 95% CI |",
+        "|---|---:|---|---:|---|",
+    ]
+    for ctrl in sorted(point, key=lambda c: -point[c][0]):
+        p, ci = point[ctrl], interval[ctrl]
+        lines.append(
+            f"| {ctrl} | {p[0]:.3f} | [{ci[0][0]:.3f}, {ci[1][0]:.3f}] | {p[1]:.3f} "
+            f"| [{ci[0][1]:.3f}, {ci[1][1]:.3f}] |"
+        )
+    if out is not None:
+        args = (scores, point, interval, out / "aggregate.png", resamples, seed)
+        if draw is None:
+            aggregate_plot(*args)
+        else:
+            draw(aggregate_plot, *args)
+        lines += ["", "![aggregate](aggregate.png)"]
+    return "\n".join(lines)
+
+
+def _search_label(cfg: dict[str, Any]) -> str:
+    """A search's robot and gains, e.g. ``Iiwa (tuned)``: one robot may be searched at
+    several gain choices."""
+    robot = cfg["env_id"].split("/")[-1].replace("Track-v0", "")
+    gains = cfg.get("gains", "default")
+    return f"{robot} ({gains if isinstance(gains, str) else 'given'})"
+
+
+def worst_case_section(folders: Sequence[str | Path]) -> str:
+    """The worst-case table of the adversarial searches in ``folders`` (their
+    ``summary.csv`` and ``config.yml``), or what is missing and how to make it."""
+    if not folders:
+        return "No adversarial search is named in the config (`worst_case`)."
+    import yaml
+
+    blocks = []
+    lines = [
+        "| robot (gains) | controller | energy (J) | worst found (rad) | worst searched (rad) "
+        "| median random (rad) | searched / median | unstable, searched | unstable, random "
+        "| delivered work (J) |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for folder in map(Path, folders):
+        summary, config = folder / "summary.csv", folder / "config.yml"
+        if not (summary.exists() and config.exists()):
+            blocks.append(
+                f"Missing: `{folder}` has no search results (run `ptrack adversary "
+                f"--out {folder}` with its config)."
+            )
+            continue
+        cfg = yaml.safe_load(config.read_text())
+        robot = _search_label(cfg)
+        s = pd.read_csv(summary)
+        for _, r in s.iterrows():
+            lines.append(
+                f"| {robot} | {r['controller']} | {r['energy_j']:g} | {r['worst_rad']:.3g} "
+                f"| {r['worst_search_rad']:.3g} "
+                f"| {r['median_random_rad']:.3g} | {r['worst_over_median']:.1f} "
+                f"| {r['unstable_search']}/{r['n_search']} "
+                f"| {r['unstable_random']}/{r['n_random']} "
+                f"| {r['work_min_j']:.2f}–{r['work_max_j']:.2f} |"
+            )
+        blocks.append(
+            f"`{folder}`: {cfg['env_id']}, {', '.join(cfg['families'])}, "
+            f"gains {cfg.get('gains', 'default')}, {cfg['budget']} searched + {cfg['budget']} "
+            f"random episodes per row, cost = path-distance RMS over the {cfg['post_s']:g} s "
+            f"after the disturbance (unstable = {cfg['failure_distance_rad']:g} rad)."
+        )
+    return "\n".join(lines) + "\n\n" + "\n".join(f"- {b}" for b in blocks)
+
+
+def worst_case_sentence(folders: Sequence[str | Path]) -> str:
+    """The worst-case verdict, from the searches' ``summary.csv``: per robot and energy, the
+    controller with the lowest worst case (searched or random), and every controller that
+    an episode made unstable (how often, searched and random)."""
+    parts = []
+    for folder in map(Path, folders):
+        summary = folder / "summary.csv"
+        if not summary.exists():
+            continue
+        import yaml
+
+        robot = _search_label(yaml.safe_load((folder / "config.yml").read_text()))
+        s = pd.read_csv(summary)
+        for (family, energy), g in s.groupby(["family", "energy_j"]):
+            best = g.loc[g["worst_rad"].idxmin()]
+            unstable = [
+                f"{r['controller']} {r['unstable_search']}/{r['n_search']} searched, "
+                f"{r['unstable_random']}/{r['n_random']} random"
+                for _, r in g.iterrows()
+                if r["unstable_search"] or r["unstable_random"]
+            ]
+            parts.append(
+                f"{robot}, {family} {energy:g} J: lowest worst case {best['controller']} "
+                f"({best['worst_rad']:.3g} rad); "
+                + ("unstable: " + ", ".join(unstable) if unstable else "none unstable")
+            )
+    return ("Worst case — " + "; ".join(parts) + ".") if parts else ""
+
+
+def write_report(
+    df: pd.DataFrame,
+    out: Path,
+    metric: str,
+    reference: str,
+    worst_case: Sequence[str | Path] = (),
+    resamples: int = 20_000,
+    title: str = "",
+    figures: bool = True,
+    draw: Callable[..., Any] | None = None,
+) -> Path:
+    """Write ``out/report.md`` (and ``comparisons.csv``, and with ``figures``
+    ``aggregate.png``, drawn by ``draw`` if given: see :func:`aggregate`); return its path."""
+    # First, so that a ``draw`` handing the figure to other processes overlaps the rest.
+    aggregate_section = aggregate(df, metric, out if figures else None, draw=draw)
+    comparisons = paired_comparisons(df, metric, reference, resamples=resamples)
+    comparisons.to_csv(out / "comparisons.csv", index=False, float_format="%.17g")
+    table = condition_table(df, metric)
+    merged = table.merge(
+        comparisons[["disturbance", "level", "controller", "diff", "ci_low", "ci_high", "mark"]],
+        on=["disturbance", "level", "controller"],
+        how="left",
+    )
+    lines = [
+        f"# Verdict{': ' + title if title else ''}",
+        "",
+        " ".join(
+            p
+            for p in (
+                verdict_paragraph(comparisons, table, reference, metric),
+                worst_case_sentence(worst_case),
+            )
+            if p
+        ),
+        "",
+        f"## Per condition ({metric}, rad; paired difference to {reference})",
+        "",
+        "| condition | controller | n | mean | IQM | CVaR₁₀ | failures | diff vs ref | "
+        f"{100 * (1 - ALPHA):.0f}% simultaneous CI | mark |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---|---|",
+    ]
+    for _, r in merged.iterrows():
+        is_ref = r["controller"] == reference
+        diff = "reference" if is_ref else f"{r['diff']:+.3g}"
+        ci = "" if is_ref else f"[{r['ci_low']:+.3g}, {r['ci_high']:+.3g}]"
+        lines.append(
+            f"| {_condition_name(r['disturbance'], r['level'])} | {r['controller']} | {r['n']} "
+            f"| {r['mean']:.3g} | {r['iqm']:.3g} | {r['cvar10']:.3g} | {r['failures']} | {diff} "
+            f"| {ci} | {'' if is_ref else r['mark']} |"
+        )
+    k = int(comparisons["comparisons"].iloc[0]) if len(comparisons) else 0
+    confidence = float(comparisons["confidence"].iloc[0]) if len(comparisons) else 1.0
+    lines += [
+        "",
+        f"Multiple comparisons: {k} comparisons, each interval at {100 * confidence:.3f}% "
+        f"(Bonferroni, family-wise {100 * ALPHA:.0f}%), percentile bootstrap of the mean paired "
+        f"difference ({resamples} resamples); CVaR₁₀ = mean of the worst ⌈10%·n⌉ episodes.",
+        "",
+        "## Aggregate over conditions",
+        "",
+        aggregate_section,
+        "",
+        "## Worst case (adversarial search)",
+        "",
+        worst_case_section(worst_case),
+        "",
+    ]
+    path = out / "report.md"
+    path.write_text("\n".join(lines))
+    return path

@@ -1,0 +1,228 @@
+"""Results files of an evaluation sweep: the tidy per-episode table and its summary.
+
+``episodes.csv`` gets one row per finished episode, appended and flushed to disk as soon
+as the episode finishes, so an interrupted sweep loses at most the episodes in flight.
+:func:`read_episodes` validates the file before a resume and refuses, with the line
+number, a file with a foreign header, a row with the wrong number of fields, a truncated
+last line or a duplicated episode.
+
+:func:`summarize` aggregates per controller × disturbance × level: mean and interquartile
+mean (IQM) with 95% bootstrap confidence intervals (``scipy.stats.bootstrap``, percentile
+method, seeded), the failure rate, and the paired difference to a reference controller
+(per (seed, episode) pair, same disturbance schedule) with its interval. Failed episodes
+are counted in the failure rate and kept in every mean — never dropped.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ptrack_gym.errors import PtrackError
+from ptrack_gym.metrics import METRIC_NAMES
+from train.common.statistics import bootstrap_ci, iqm
+from train.evaluation.episode import KEY_COLUMNS
+
+COLUMNS: tuple[str, ...] = (*KEY_COLUMNS, *METRIC_NAMES, "steps", "wall_s")
+
+
+class CorruptResultsError(PtrackError, ValueError):
+    """A results file that cannot be resumed from safely."""
+
+
+def read_episodes(
+    path: Path,
+    columns: Sequence[str] = COLUMNS,
+    key_columns: Sequence[str] = KEY_COLUMNS,
+) -> list[dict[str, str]]:
+    """The rows of an ``episodes.csv``, validated (see the module docstring); ``columns``
+    and ``key_columns`` are another study's (e.g. ``train.studies.rates``)."""
+    columns, key_columns = tuple(columns), tuple(key_columns)
+    if not path.exists():
+        return []
+    text = path.read_text()
+    if text and not text.endswith("\n"):
+        raise CorruptResultsError(
+            f"{path}: the last line is incomplete (the sweep was killed mid-write?); "
+            f"delete that line or the file to resume"
+        )
+    rows = list(csv.reader(text.splitlines()))
+    if not rows:
+        return []
+    if tuple(rows[0]) != columns:
+        raise CorruptResultsError(f"{path}: header {rows[0]} is not the expected {list(columns)}")
+    out, seen = [], set()
+    for lineno, fields in enumerate(rows[1:], start=2):
+        if len(fields) != len(columns):
+            raise CorruptResultsError(
+                f"{path}, line {lineno}: {len(fields)} fields, expected {len(columns)}"
+            )
+        row = dict(zip(columns, fields, strict=True))
+        key = tuple(row[k] for k in key_columns)
+        if key in seen:
+            raise CorruptResultsError(f"{path}, line {lineno}: episode {key} appears twice")
+        seen.add(key)
+        out.append(row)
+    return out
+
+
+class EpisodeWriter:
+    """Appends rows to ``episodes.csv`` (header first if the file is new), each one
+    flushed and fsynced before :meth:`write` returns; ``columns``: another study's."""
+
+    def __init__(self, path: Path, columns: Sequence[str] = COLUMNS) -> None:
+        new = not path.exists() or path.stat().st_size == 0
+        self._columns = tuple(columns)
+        self._file = path.open("a", newline="")
+        self._writer = csv.DictWriter(self._file, fieldnames=list(columns), extrasaction="raise")
+        if new:
+            self._writer.writeheader()
+            self._flush()
+
+    def _flush(self) -> None:
+        self._file.flush()
+        os.fsync(self._file.fileno())
+
+    def write(self, row: dict[str, Any]) -> None:
+        self._writer.writerow({k: _fmt(row[k]) for k in self._columns})
+        self._flush()
+
+    def close(self) -> None:
+        self._file.close()
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return repr(value)  # round-trips exactly
+    return str(value)
+
+
+def load_frame(path: Path) -> pd.DataFrame:
+    """``episodes.csv`` as a DataFrame with numeric metric columns, its rows sorted by
+    their key (controller, disturbance, level, seed, episode): the file holds them in the
+    order they finished, which parallel runners change from run to run, and the bootstrap
+    intervals computed from the frame must not depend on it."""
+    df = pd.DataFrame(read_episodes(path), columns=list(COLUMNS))
+    for col in (*METRIC_NAMES, "wall_s", "level"):
+        df[col] = df[col].astype(float)  # parses "nan" and repr() floats exactly
+    for col in ("steps", "seed", "episode"):
+        df[col] = df[col].astype(int)
+    return df.sort_values(list(KEY_COLUMNS), kind="stable").reset_index(drop=True)
+
+
+def summarize(
+    df: pd.DataFrame,
+    metric: str = "path_dist_rms",
+    reference: str | None = None,
+    resamples: int = 2000,
+    seed: int = 0,
+) -> pd.DataFrame:
+    """One row per controller × disturbance × level (see the module docstring)."""
+    out = []
+    groups = df.groupby(["controller", "disturbance", "level"], sort=True)
+    ref_rows = (
+        df[df["controller"] == reference].set_index(["disturbance", "level", "seed", "episode"])
+        if reference is not None
+        else None
+    )
+    for (ctrl, dist, level), g in groups:
+        x = g[metric].to_numpy(dtype=float)
+        x = x[np.isfinite(x)]  # the point estimates use the same values as the intervals
+        mean_lo, mean_hi = bootstrap_ci(x, np.mean, resamples, seed)
+        iqm_lo, iqm_hi = bootstrap_ci(x, iqm, resamples, seed)
+        row: dict[str, Any] = {
+            "controller": ctrl,
+            "disturbance": dist,
+            "level": level,
+            "n": len(x),
+            "failure_rate": float(g["failed"].mean()),
+            f"{metric}_mean": float(np.mean(x)),
+            "mean_ci_low": mean_lo,
+            "mean_ci_high": mean_hi,
+            f"{metric}_iqm": float(iqm(x)),
+            "iqm_ci_low": iqm_lo,
+            "iqm_ci_high": iqm_hi,
+            "time_err_rms_mean": float(g["time_err_rms"].mean()),
+            "speed_ratio_err_mean": float(g["speed_ratio_err"].mean()),
+            # Never recovered (NaN) counts as +inf, so the median cannot hide failures.
+            "recovery_s_median": float(np.median(g["recovery_s"].fillna(np.inf))),
+            "recovered_frac": float(g["recovery_s"].notna().mean()),
+            "tau_rms_frac_mean": float(g["tau_rms_frac"].mean()),
+        }
+        if ref_rows is not None:
+            keyed = g.set_index(["disturbance", "level", "seed", "episode"])[metric]
+            common = keyed.index.intersection(ref_rows.index)
+            diff = keyed.loc[common].to_numpy(float) - ref_rows.loc[common, metric].to_numpy(float)
+            lo, hi = bootstrap_ci(diff, np.mean, resamples, seed)
+            row.update(
+                {
+                    f"diff_vs_{reference}": float(np.mean(diff)) if len(diff) else float("nan"),
+                    "diff_ci_low": lo,
+                    "diff_ci_high": hi,
+                }
+            )
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def done_keys(rows: Iterable[dict[str, str]]) -> set[tuple[str, ...]]:
+    """The keys of finished episodes."""
+    return {tuple(r[k] for k in KEY_COLUMNS) for r in rows}
+
+
+def format_table(summary: pd.DataFrame, metric: str, columns: Sequence[str] | None = None) -> str:
+    """A compact markdown table of a summary (for the console and the README)."""
+    cols = columns or [
+        "controller",
+        "disturbance",
+        "level",
+        "n",
+        f"{metric}_mean",
+        "mean_ci_low",
+        "mean_ci_high",
+        f"{metric}_iqm",
+        "failure_rate",
+        "time_err_rms_mean",
+        "speed_ratio_err_mean",
+    ]
+    cols = [c for c in cols if c in summary.columns] + [
+        c for c in summary.columns if c.startswith("diff")
+    ]
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for _, r in summary.iterrows():
+        cells = [f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in cols]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def headline_table(summary: pd.DataFrame, metric: str) -> str:
+    """Markdown: the mean of ``metric`` per condition (rows: "undisturbed", then each
+    disturbance × level) and controller (columns), the lowest of each row in bold — the
+    table ``make run`` ends with."""
+    df = summary.copy()
+    df["condition"] = [
+        "undisturbed" if d == "none" else f"{d} {float(lv):g}"
+        for d, lv in zip(df["disturbance"], df["level"], strict=True)
+    ]
+    table = df.pivot_table(
+        index="condition", columns="controller", values=f"{metric}_mean", sort=False
+    )
+    controllers = list(dict.fromkeys(df["controller"]))
+    lines = [
+        "| condition | " + " | ".join(controllers) + " |",
+        "|---|" + "---:|" * len(controllers),
+    ]
+    for condition, row in table.iterrows():
+        best = row[controllers].min()
+        cells = [
+            "" if pd.isna(row[c]) else (f"**{row[c]:.2e}**" if row[c] == best else f"{row[c]:.2e}")
+            for c in controllers
+        ]
+        lines.append(f"| {condition} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)

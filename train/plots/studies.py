@@ -1,0 +1,103 @@
+"""Figures of the studies: error–effort fronts, the adversarial search, control rates."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from train.common.statistics import pareto_front
+from train.plots import pyplot
+
+
+def fronts_plot(rows: list[dict[str, Any]], path: Path, reference: str) -> None:
+    plt = pyplot()
+
+    panels = sorted({r["panel"] for r in rows}, key=lambda p: (p == "all", p))
+    controllers = sorted({r["controller"] for r in rows})
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.8 * len(panels), 3.6), squeeze=False)
+    for ax, panel in zip(axes[0], panels, strict=True):
+        for i, c in enumerate(controllers):
+            pts = sorted((r for r in rows if r["panel"] == panel and r["controller"] == c),
+                         key=lambda r: r["scale"])  # fmt: skip
+            eff = np.array([p["effort"] for p in pts])
+            err = np.array([p["error_rad"] for p in pts])
+            color = f"C{i}"
+            lo = np.array([[p["effort_ci_low"], p["error_ci_low"]] for p in pts])
+            hi = np.array([[p["effort_ci_high"], p["error_ci_high"]] for p in pts])
+            ax.errorbar(
+                eff, err, xerr=[eff - lo[:, 0], hi[:, 0] - eff],
+                yerr=[err - lo[:, 1], hi[:, 1] - err], fmt="o", ms=3, color=color, alpha=0.5,
+                lw=0.8,
+            )  # fmt: skip
+            front = pareto_front(eff, err)
+            ax.plot(eff[front], err[front], color=color, label=c)
+            unit = [p for p in pts if p["scale"] == 1.0]
+            if unit:
+                ax.plot(unit[0]["effort"], unit[0]["error_rad"], "s", color=color, ms=6)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(panel)
+        ax.set_xlabel("dynamic effort RMS((τ−g)/τ_max)")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0][0].set_ylabel("path-distance RMS (rad), mean, 95% CI")
+    axes[0][-1].legend(fontsize=7)
+    fig.suptitle("Error vs effort, one gain scale per controller (square: scale 1)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def adversary_plot(df: Any, path: Path) -> None:
+    """The worst cost so far against searched episodes, per family × energy."""
+    plt = pyplot()
+
+    groups = list(df.groupby(["family", "energy_j"]))
+    fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups), 4), squeeze=False)
+    for ax, ((family, energy), g) in zip(axes[0], groups, strict=True):
+        for controller, gc in g.groupby("controller"):
+            s = gc[gc["kind"] == "search"].sort_values("trial")
+            (line,) = ax.plot(np.maximum.accumulate(s["cost_rad"].to_numpy()), label=controller)
+            med = gc[gc["kind"] == "random"]["cost_rad"].median()
+            ax.axhline(med, color=line.get_color(), ls=":", lw=1)
+        ax.set_yscale("log")
+        ax.set_xlabel("searched episodes")
+        ax.set_ylabel("worst cost so far (rad; dotted: median random)")
+        ax.set_title(f"{family}, {energy:g} J")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def rates_figure(cfg: Any, table: pd.DataFrame, path: Path) -> None:
+    """Median ``cfg.metric`` against the control rate, one panel per robot × disturbance
+    (``cfg``: a :class:`~train.studies.rates.RatesConfig`)."""
+    plt = pyplot()
+
+    panels = [(r, d) for r in cfg.robots for d in cfg.disturbances]
+    cols = len(cfg.disturbances)
+    fig, axes = plt.subplots(len(cfg.robots), cols, figsize=(4.2 * cols, 2.8 * len(cfg.robots)),
+                             squeeze=False, sharex=True)  # fmt: skip
+    for ax, (robot, dist) in zip(axes.ravel(), panels, strict=True):
+        sub = table[(table["robot"] == robot) & (table["disturbance"] == dist)]
+        for ctrl in cfg.controllers:
+            c = sub[sub["controller"] == ctrl].sort_values("control_hz")
+            ax.plot(c["control_hz"], c["median"], marker="o", ms=3, label=ctrl)
+            bad = c[~c["holds"]]
+            ax.plot(bad["control_hz"], bad["median"], "x", color="k", ms=6)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.invert_xaxis()
+        ax.set_title(f"{robot}, {dist}", fontsize=9)
+        ax.set_ylabel(f"median {cfg.metric} (rad)", fontsize=8)
+    for ax in axes[-1]:
+        ax.set_xlabel("control rate (Hz)")
+    axes[0, -1].legend(fontsize=7)
+    fig.suptitle("× : does not hold at that rate (a failure, a refusal or too much accuracy lost)",
+                 fontsize=9)  # fmt: skip
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,118 @@
+"""Checkpoints of a training run: the newest one, saving the final state, resuming.
+
+Files in ``<run>/checkpoints/``: ``rl_model_<steps>_steps.zip`` (SB3's
+``CheckpointCallback``), the matching ``rl_model_vecnormalize_<steps>_steps.pkl`` and, for
+the newest checkpoint only, ``rl_model_replay_buffer_<steps>_steps.pkl``. The final state is
+always saved there too, so ``--resume`` continues any finished or interrupted run.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import CheckpointCallback
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+
+from train.rl.hyperparameters import TrainConfigError
+
+CHECKPOINT_PREFIX = "rl_model"
+_CHECKPOINT_RE = re.compile(rf"^{CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")
+_REPLAY_RE = re.compile(rf"^{CHECKPOINT_PREFIX}_replay_buffer_(\d+)_steps\.pkl$")
+
+
+def latest_checkpoint(run_dir: Path) -> tuple[int, Path] | None:
+    """(steps, path) of the newest ``checkpoints/rl_model_<steps>_steps.zip``, or None."""
+    folder = run_dir / "checkpoints"
+    if not folder.is_dir():
+        return None
+    found = [(int(m.group(1)), p) for p in folder.iterdir() if (m := _CHECKPOINT_RE.match(p.name))]
+    return max(found) if found else None
+
+
+def prune_replay_buffers(folder: Path, keep_steps: int) -> None:
+    """Delete the checkpoint replay buffers of ``folder`` older than ``keep_steps``.
+
+    A replay buffer is saved whole (SAC's default 300 000 transitions of the residual
+    TwoLink env: ~60 MB), so only the newest one, the one ``--resume`` uses, is kept.
+    """
+    for path in folder.glob(f"{CHECKPOINT_PREFIX}_replay_buffer_*_steps.pkl"):
+        m = _REPLAY_RE.match(path.name)
+        if m and int(m.group(1)) < keep_steps:
+            path.unlink()
+
+
+class PruningCheckpointCallback(CheckpointCallback):
+    """SB3's CheckpointCallback that keeps only the newest replay buffer."""
+
+    def _on_step(self) -> bool:
+        result = super()._on_step()
+        if self.n_calls % self.save_freq == 0 and self.save_replay_buffer:
+            prune_replay_buffers(Path(self.save_path), self.num_timesteps)
+        return result
+
+
+def save_checkpoint(
+    model: BaseAlgorithm, train_env: VecEnv, run_dir: Path, replay_buffer: bool = True
+) -> Path:
+    """``checkpoints/rl_model_<steps>_steps.zip`` and its VecNormalize statistics; with
+    ``replay_buffer``, an off-policy model's replay buffer too (older ones pruned). Returns
+    the checkpoint folder."""
+    steps = model.num_timesteps
+    ckpt = run_dir / "checkpoints"
+    ckpt.mkdir(parents=True, exist_ok=True)
+    model.save(ckpt / f"{CHECKPOINT_PREFIX}_{steps}_steps.zip")
+    if replay_buffer and isinstance(model, OffPolicyAlgorithm):
+        model.save_replay_buffer(ckpt / f"{CHECKPOINT_PREFIX}_replay_buffer_{steps}_steps.pkl")
+        prune_replay_buffers(ckpt, steps)
+    if isinstance(train_env, VecNormalize):
+        train_env.save(str(ckpt / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"))
+    return ckpt
+
+
+def save_final(model: BaseAlgorithm, train_env: VecEnv, run_dir: Path) -> None:
+    """model.zip / vecnormalize.pkl, and the same state as a checkpoint for --resume
+    (with the replay buffer of an off-policy model)."""
+    model.save(run_dir / "model.zip")
+    save_checkpoint(model, train_env, run_dir)
+    if isinstance(train_env, VecNormalize):
+        train_env.save(str(run_dir / "vecnormalize.pkl"))
+
+
+def load_checkpoint(
+    algo: type[BaseAlgorithm],
+    run_dir: Path,
+    train_env: VecEnv,
+    eval_env: VecEnv,
+    normalized: bool,
+    device: str,
+    tensorboard: bool,
+) -> tuple[BaseAlgorithm, VecEnv]:
+    """The newest checkpoint of ``run_dir`` (model, VecNormalize statistics into both
+    envs, replay buffer) to continue training; returns the model and the training env."""
+    found = latest_checkpoint(run_dir)
+    if found is None:
+        raise TrainConfigError(f"--resume: no checkpoint in {run_dir / 'checkpoints'}")
+    steps, path = found
+    ckpt = run_dir / "checkpoints"
+    vecnorm = ckpt / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"
+    if normalized:
+        if not vecnorm.exists():
+            raise TrainConfigError(f"--resume: {vecnorm} is missing")
+        assert isinstance(train_env, VecNormalize) and isinstance(eval_env, VecNormalize)
+        train_env = VecNormalize.load(str(vecnorm), train_env.venv)
+        train_env.training = True
+        eval_env.obs_rms = train_env.obs_rms.copy()
+    model = algo.load(
+        path,
+        env=train_env,
+        device=device,
+        tensorboard_log=str(run_dir / "tb") if tensorboard else None,
+        print_system_info=False,
+    )
+    replay = ckpt / f"{CHECKPOINT_PREFIX}_replay_buffer_{steps}_steps.pkl"
+    if isinstance(model, OffPolicyAlgorithm) and replay.exists():
+        model.load_replay_buffer(replay)
+    return model, train_env

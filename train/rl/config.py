@@ -1,0 +1,472 @@
+"""One training run's configuration, :class:`TrainConfig`, and its validation.
+
+:func:`validate` checks every field and resolves the hyperparameters (``train/hyperparams/
+<algo>.yml`` in rl-baselines3-zoo's format, then ``hyperparams``, then ``overrides``)
+without touching a file or building an env: every configuration error — unknown algorithm,
+env id, residual base, disturbance, env argument (checked by the env's own validator) or
+hyperparameter — raises :class:`TrainConfigError` before anything runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import yaml
+
+from agents.hold import check_decision_every
+from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
+from agents.residual import (
+    RESIDUAL_BASES,
+    check_base_gains,
+    check_base_model,
+    check_prior,
+    check_safeguards,
+)
+from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.robots import profile_for_env_id
+from train.common.arguments import (
+    add_config_arguments,
+    config_from_args,
+)
+from train.common.arguments import to_argv as config_to_argv
+from train.evaluation.envs import (
+    WRAPPER_DEFAULTS,
+    check_env_kwargs,
+    env_kwargs,
+    residual_wrapper_kwargs,
+)
+from train.evaluation.policies import ALGOS, BACKENDS
+from train.rl.checkpoints import (
+    latest_checkpoint,
+)
+from train.rl.hyperparameters import (
+    TrainConfigError,
+    load_hyperparams,
+    parse_set,
+    resolve_hyperparams,
+)
+from train.rl.imitation import (
+    DaggerSpec,
+)
+
+#: ``--residual`` choices: "none" (pure RL), a base controller name, or "network" (a saved
+#: pure policy, ``base_model``).
+RESIDUAL_CHOICES: tuple[str, ...] = ("none", *RESIDUAL_BASES)
+
+
+@dataclass
+class TrainConfig:
+    """Everything that defines one training run (SI units where physical)."""
+
+    out: str
+    """Run folder: config, checkpoints, final model, logs."""
+    algo: str = "sac"
+    """Algorithm: "sac", "td3" or "ppo"."""
+    backend: str = "sb3"
+    """Its implementation: "sb3" (Stable-Baselines3, torch) or "sbx" (the SB3 team's JAX port,
+    the optional ``sbx`` extra; the same interface, callbacks and files). The residual
+    safeguards that act on the torch actor (``zero_init_residual``, ``init_log_std``,
+    ``critic_warmup_steps``, ``actor_lr_scale``, ``actor_bc_weight``) are sb3's only."""
+    env_id: str = "ptrack_gym/TwoLinkTrack-v0"
+    """A ptrack_gym env id (``ptrack_gym.ENV_IDS``)."""
+    residual: str = "none"
+    """"none" for pure RL, or the base controller of a residual policy (agents.registry)."""
+    scale_fraction: float = 0.1
+    """Residual authority: scale = scale_fraction · τ_max per joint (N·m)."""
+    scale_accel_rad_s2: float | None = None
+    """Residual only: the residual as a joint acceleration instead of ``scale_fraction``:
+    τ_res = M(q) α a, α in rad/s² (``agents.residual``)."""
+    base_gains: str = "default"
+    """Residual only: the base controller's gains, "default" (the robot's default rates at
+    the control rate) or "tuned" (``agents/tuned``, the main job's); evaluation rebuilds
+    the run's env with the same."""
+    base_model: str | None = None
+    """``residual="network"`` only: the folder of the saved pure SAC policy that is the base
+    (``model.zip``, ``vecnormalize.pkl``; ``agents.network``) — RL then learns a correction
+    to a frozen policy, e.g. an imitation (``imitate``), without touching its weights."""
+    disturbance: str = "none"
+    """Training disturbance: "none", a preset ("impulse") or "preset:level" ("push:0.5")."""
+    eval_disturbance: str | None = None
+    """Disturbance of the evaluation env, same syntax; None → the training disturbance."""
+    steps: int | None = None
+    """Environment steps to train in this invocation (added to a resumed count); None →
+    the hyperparameter file's ``n_timesteps``."""
+    seed: int = 0
+    """Seed of the model, the training envs (seed … seed + n_envs − 1), eval env seed + 1000."""
+    hyperparams: str | None = None
+    """A YAML file (same format as train/hyperparams/<algo>.yml) merged over the packaged one."""
+    overrides: dict[str, Any] = field(default_factory=dict)
+    """Hyperparameter overrides (``--set key=value``), applied last."""
+    n_envs: int | None = None
+    """Parallel training envs (DummyVecEnv); None → the YAML's ``n_envs``, else 1."""
+    vec_normalize: bool | None = None
+    """Wrap the envs in VecNormalize; None → the YAML's ``normalize``, else False."""
+    eval_freq: int = 10_000
+    """Evaluate every this many env steps (summed over envs); 0 disables evaluation."""
+    eval_episodes: int = 5
+    """Episodes per evaluation."""
+    checkpoint_freq: int = 50_000
+    """Checkpoint every this many env steps (summed over envs); 0: only the final one."""
+    resume: bool = False
+    """Continue from the newest checkpoint in ``out`` (model, replay buffer, VecNormalize)."""
+    zero_init_residual: bool = False
+    """Zero the actor's output layer (SAC/TD3 mu, PPO action_net): the policy starts at a = 0."""
+    progress_bar: bool = False
+    """Show SB3's progress bar (tqdm + rich)."""
+    tensorboard: bool = False
+    """Log to TensorBoard under ``out/tb/from_<steps>`` (progress.csv is written there always)."""
+    control_hz: float | None = None
+    """Control rate (Hz); None → the robot profile's ``default_control_hz``. Physics: 1 kHz."""
+    episode_s: float = 5.0
+    """Episode length (s): max_episode_steps = round(episode_s · control_hz)."""
+    start: str = "on_path"
+    """The env's start mode: "on_path" or "rest_near_path"."""
+    reward_weights: list[float] | None = None
+    """The env's reward weights [path, time, effort] (see ``TrackingEnv``); None → the
+    env's default (10, 1, 0.01). The evaluation env uses the same."""
+    reward: str = "quadratic"
+    """The env's reward: "quadratic" (its default, unbounded) or "kernel" (bounded in [0, 1],
+    ``ptrack_gym.envs.rewards``). The evaluation env uses the same."""
+    kernel_weights: list[float] | None = None
+    """With ``reward="kernel"``: its weights [path, time, effort]; None → the env's default
+    (0.5, 0.4, 0.1)."""
+    max_path_distance: float | None = None
+    """End a training episode when the path distance exceeds this (rad); None: never."""
+    action_penalty: float = 0.0
+    """Residual only: w of the penalty on the learned part, r + w (1 − |a|²/n)."""
+    gate_rad: float | None = None
+    """Residual only: gate the residual by the path error, γ = 1 − exp(−((d − d₀)⁺/gate_rad)²)."""
+    gate_deadband_rad: float = 0.0
+    """Residual with a gate only: d₀ (rad), the residual is exactly 0 while d ≤ d₀."""
+    init_log_std: float | None = None
+    """SAC only: the actor's log-std layer starts constant at this value (exploration
+    std exp(init_log_std) before tanh); None: SB3's initialisation."""
+    decision_every: int = 1
+    """The policy decides every this many control steps and its action is held in between
+    (``agents.hold.ActionRepeat``; the env and a residual's base still run every step):
+    ``steps``, checkpoints and warm-ups then count decisions, each worth this many env steps,
+    and the reward of a decision is the mean of its steps'. Evaluation holds the action the
+    same way (``agents.hold.HeldActionPolicy``). 1: every step."""
+    critic_warmup_steps: int = 0
+    """Off-policy only: the actor is frozen (its parameters get no update) for this many
+    steps after ``learning_starts`` while the critic learns from what it does; with
+    ``--zero-init-residual`` that is the base controller plus exploration noise."""
+    actor_lr_scale: float = 1.0
+    """SAC/TD3 only: the actor's learning rate is this times the schedule's (the critic's
+    and the entropy coefficient's keep it): with Adam, how far the actor's output moves per
+    update scales with it (``scale_actor_lr``)."""
+    prior_gain_per_rad: float = 0.0
+    """Residuals only: g (1/rad) of a control prior the learned action is added to,
+    a_eff = clip(a + clip(g (q_r(s) − q), −1, 1), −1, 1), q_r(s) − q the base's own reference
+    error (``agents.residual.PRIOR_ERROR_FEATURES``); with
+    ``zero_init_residual`` the policy starts as the prior and ``actor_bc_weight`` pulls
+    toward it. 0: none."""
+    imitate: str | None = None
+    """Pure SAC only: start the actor as a copy of this model-based controller (a name of
+    ``agents.registry``) learned by DAgger before RL (``train.rl.imitation``); None: no
+    imitation. The run folder gets ``demonstrations.npz``, ``imitation.json`` and a
+    checkpoint at step 0 (the imitation alone)."""
+    imitate_gains: str = DaggerSpec.gains
+    """The expert's gains: "default" or "tuned"."""
+    imitate_rounds: int = DaggerSpec.rounds
+    """DAgger rounds after round 0 (0: behaviour cloning of the expert's own runs only)."""
+    imitate_steps: int = DaggerSpec.first_steps
+    """Env steps of round 0 (the expert drives)."""
+    imitate_round_steps: int = DaggerSpec.round_steps
+    """Env steps of each further round (the network drives, the expert labels)."""
+    imitate_noise: float = DaggerSpec.noise
+    """Std of the Gaussian added to every executed action while imitating (a = τ/τ_max)."""
+    demo_bc_weight: float = 0.0
+    """With ``imitate``: λ of a pull toward the expert's labels during RL,
+    λ·E_(s,a_E)[|tanh(μ(s)) − a_E|²/n] added to the actor's loss (``add_demo_bc``); 0: none."""
+    actor_bc_weight: float = 0.0
+    """SAC/TD3 only: λ of a behaviour-cloning term toward the base, λ·E_s[|μ(s)|²/n] added to
+    the actor's loss (μ the deterministic action in [−1, 1]ⁿ, s drawn from the replay
+    buffer; TD3+BC's term with the base's action 0 as the target): the actor leaves 0 only
+    where the critic's action gradient exceeds 2λ|μ_j|/n (``add_actor_bc``). With a control
+    prior (``prior_gain_per_rad``) a = 0 is the prior, so the pull is toward it."""
+    torch_threads: int = 1
+    """``torch.set_num_threads`` (the machines are shared: keep 1)."""
+    device: str = "cpu"
+    """Torch device."""
+    verbose: int = 0
+    """SB3 verbosity (0, 1, 2)."""
+
+
+# -- validation ------------------------------------------------------------------------
+class Resolved(NamedTuple):
+    """A validated config with everything derived from it."""
+
+    cfg: TrainConfig
+    robot: str
+    control_hz: float
+    max_episode_steps: int
+    algo_kwargs: dict[str, Any]
+    special: dict[str, Any]
+    steps: int
+    n_envs: int
+    normalize_kwargs: dict[str, Any] | None  # None: no VecNormalize
+    env_extra: dict[str, Any]  # further env arguments (reward mode, off-path end)
+    residual_kwargs: dict[str, Any]  # the residual wrapper's safeguards
+
+
+def validate(cfg: TrainConfig) -> Resolved:
+    """Check every field and resolve the hyperparameters; touches no file or env.
+
+    Raises:
+        TrainConfigError: the first problem found, with the valid choices.
+    """
+    if cfg.algo not in ALGOS:
+        raise TrainConfigError(f"unknown algo {cfg.algo!r}; known: {sorted(ALGOS)}")
+    if cfg.backend not in BACKENDS:
+        raise TrainConfigError(f"unknown backend {cfg.backend!r}; known: {list(BACKENDS)}")
+    if cfg.backend == "sbx":
+        torch_only = [
+            name
+            for name, on in (
+                ("zero_init_residual", cfg.zero_init_residual),
+                ("init_log_std", cfg.init_log_std is not None),
+                ("critic_warmup_steps", cfg.critic_warmup_steps != 0),
+                ("actor_lr_scale", cfg.actor_lr_scale != 1.0),
+                ("actor_bc_weight", cfg.actor_bc_weight != 0.0),
+                ("imitate", cfg.imitate is not None),
+            )
+            if on
+        ]
+        if torch_only:
+            raise TrainConfigError(
+                f"{', '.join(torch_only)}: implemented on SB3's torch actor, not for backend "
+                "'sbx' (use --backend sb3)"
+            )
+    if cfg.residual not in RESIDUAL_CHOICES:
+        raise TrainConfigError(
+            f"unknown residual base {cfg.residual!r}; known: {list(RESIDUAL_CHOICES)}"
+        )
+    if not (math.isfinite(cfg.scale_fraction) and cfg.scale_fraction >= 0):
+        raise TrainConfigError(f"scale_fraction must be >= 0, got {cfg.scale_fraction}")
+    if not (math.isfinite(cfg.episode_s) and cfg.episode_s > 0):
+        raise TrainConfigError(f"episode_s must be positive, got {cfg.episode_s}")
+    residual_kwargs = residual_wrapper_kwargs(dataclasses.asdict(cfg))
+    if cfg.residual == "none":
+        if residual_kwargs != WRAPPER_DEFAULTS:
+            raise TrainConfigError(f"{', '.join(WRAPPER_DEFAULTS)} need a residual base")
+        residual_kwargs = {}
+    if cfg.critic_warmup_steps < 0:
+        raise TrainConfigError(f"critic_warmup_steps must be >= 0, got {cfg.critic_warmup_steps}")
+    if cfg.critic_warmup_steps and cfg.algo == "ppo":
+        raise TrainConfigError("critic_warmup_steps needs an off-policy algorithm (sac, td3)")
+    if not (math.isfinite(cfg.actor_lr_scale) and 0 < cfg.actor_lr_scale <= 1):
+        raise TrainConfigError(f"actor_lr_scale must be in (0, 1], got {cfg.actor_lr_scale}")
+    if cfg.actor_lr_scale != 1.0 and cfg.algo == "ppo":
+        raise TrainConfigError("actor_lr_scale needs an actor optimizer (sac, td3)")
+    if not (math.isfinite(cfg.actor_bc_weight) and cfg.actor_bc_weight >= 0):
+        raise TrainConfigError(f"actor_bc_weight must be >= 0, got {cfg.actor_bc_weight}")
+    if cfg.actor_bc_weight and cfg.algo == "ppo":
+        raise TrainConfigError("actor_bc_weight needs an actor optimizer (sac, td3)")
+    _validate_imitation(cfg)
+    if cfg.init_log_std is not None and (cfg.algo != "sac" or not math.isfinite(cfg.init_log_std)):
+        raise TrainConfigError("init_log_std is a finite number, for sac only")
+    env_extra: dict[str, Any] = {"reward": cfg.reward}
+    if cfg.kernel_weights is not None:
+        env_extra["kernel_weights"] = tuple(cfg.kernel_weights)
+    if cfg.max_path_distance is not None:
+        env_extra["max_path_distance_rad"] = cfg.max_path_distance
+    try:
+        check_base_gains(cfg.base_gains)
+        profile = profile_for_env_id(cfg.env_id)
+        control_hz = profile.default_control_hz if cfg.control_hz is None else cfg.control_hz
+        max_episode_steps = max(1, round(cfg.episode_s * control_hz))
+        for text in (cfg.disturbance, cfg.eval_disturbance or cfg.disturbance):
+            check_env_kwargs(
+                cfg.env_id,
+                env_kwargs(
+                    control_hz, max_episode_steps, cfg.start, text, cfg.reward_weights, env_extra
+                ),
+            )
+        if residual_kwargs:
+            own = ("base_gains", "prior_gain_per_rad", "base_model")
+            check_safeguards(**{k: v for k, v in residual_kwargs.items() if k not in own})
+            check_prior(cfg.residual, cfg.prior_gain_per_rad)
+            check_base_model(cfg.residual, cfg.base_model, profile.name, cfg.base_gains)
+            if cfg.base_gains == "tuned":
+                tuned_rates(profile.name, cfg.residual)  # raises naming the tuned files there are
+        if cfg.imitate is not None and cfg.imitate_gains == "tuned":
+            tuned_rates(profile.name, cfg.imitate)  # likewise, for the expert
+    except InvalidConfigError as exc:
+        raise TrainConfigError(str(exc)) from None
+    for name in ("eval_freq", "checkpoint_freq"):
+        if getattr(cfg, name) < 0:
+            raise TrainConfigError(f"{name} must be >= 0")
+    if cfg.eval_episodes < 1 or cfg.torch_threads < 1:
+        raise TrainConfigError("eval_episodes and torch_threads must be >= 1")
+    raw = load_hyperparams(cfg.algo, cfg.env_id, cfg.hyperparams, cfg.overrides)
+    algo_kwargs, special = resolve_hyperparams(cfg.algo, raw, cfg.backend)
+    if cfg.imitate is not None and int(algo_kwargs.get("learning_starts", 100)) != 0:
+        raise TrainConfigError(
+            "imitate needs learning_starts=0 (--set learning_starts=0): SB3 acts uniformly at "
+            "random until learning_starts, which throws the arm off the path the imitation "
+            "tracks and fills the replay buffer with it"
+        )
+    steps = cfg.steps if cfg.steps is not None else special.get("n_timesteps")
+    if steps is None or int(steps) < 1:
+        raise TrainConfigError(f"steps must be >= 1 (or n_timesteps in the YAML), got {steps}")
+    n_envs = int(cfg.n_envs if cfg.n_envs is not None else special.get("n_envs", 1))
+    if n_envs < 1:
+        raise TrainConfigError(f"n_envs must be >= 1, got {n_envs}")
+    normalize = special.get("normalize", False)
+    if cfg.vec_normalize is not None:
+        normalize = (normalize or {}) if cfg.vec_normalize else False
+    normalize_kwargs = None
+    if normalize is not False:
+        normalize_kwargs = dict(normalize) if isinstance(normalize, dict) else {}
+        normalize_kwargs.setdefault("gamma", float(algo_kwargs.get("gamma", 0.99)))
+    run_dir = Path(cfg.out)
+    if cfg.resume:
+        if latest_checkpoint(run_dir) is None:
+            raise TrainConfigError(f"--resume: no checkpoint in {run_dir / 'checkpoints'}")
+        _check_resume_compatible(cfg, run_dir)
+    elif (run_dir / "config.yml").exists():
+        raise TrainConfigError(f"{run_dir} already holds a run; use --resume or a new --out")
+    return Resolved(
+        cfg,
+        profile.name,
+        float(control_hz),
+        max_episode_steps,
+        algo_kwargs,
+        special,
+        int(steps),
+        n_envs,
+        normalize_kwargs,
+        env_extra,
+        residual_kwargs,
+    )
+
+
+#: The demonstration pull's random stream, apart from DAgger's (seeded by the run's seed
+#: alone): np.random.default_rng([seed, DEMO_BC_STREAM, steps at its start]).
+DEMO_BC_STREAM = 7919
+
+
+def _validate_imitation(cfg: TrainConfig) -> None:
+    try:
+        check_decision_every(cfg.decision_every)
+    except InvalidConfigError as exc:
+        raise TrainConfigError(str(exc)) from None
+    if cfg.imitate is not None and cfg.decision_every != 1:
+        raise TrainConfigError("imitate labels every control step: keep decision_every 1")
+    if not (math.isfinite(cfg.demo_bc_weight) and cfg.demo_bc_weight >= 0):
+        raise TrainConfigError(f"demo_bc_weight must be >= 0, got {cfg.demo_bc_weight}")
+    if cfg.imitate is None:
+        if cfg.demo_bc_weight:
+            raise TrainConfigError("demo_bc_weight needs imitate (the expert's demonstrations)")
+        return
+    if cfg.imitate not in CONTROLLER_NAMES:
+        raise TrainConfigError(
+            f"unknown expert {cfg.imitate!r} for imitate; known: {list(CONTROLLER_NAMES)}"
+        )
+    if cfg.residual != "none" or cfg.algo != "sac":
+        raise TrainConfigError("imitate is for pure SAC (residual none, algo sac)")
+    if cfg.imitate_gains not in GAIN_CHOICES:
+        raise TrainConfigError(
+            f"imitate_gains must be one of {GAIN_CHOICES}, got {cfg.imitate_gains!r}"
+        )
+    if cfg.init_log_std is None:
+        raise TrainConfigError(
+            "imitate needs init_log_std: the fit trains the actor's mean only, so its "
+            "exploration std would be whatever the shared layers make of the log-std head"
+        )
+    if cfg.imitate_rounds < 0 or cfg.imitate_steps < 1 or cfg.imitate_round_steps < 1:
+        raise TrainConfigError("imitate_rounds must be >= 0, imitate_(round_)steps >= 1")
+    if not (math.isfinite(cfg.imitate_noise) and cfg.imitate_noise >= 0):
+        raise TrainConfigError(f"imitate_noise must be >= 0, got {cfg.imitate_noise}")
+
+
+def dagger_spec(cfg: TrainConfig) -> DaggerSpec:
+    """The imitation a config asks for (``cfg.imitate`` set)."""
+    assert cfg.imitate is not None
+    return DaggerSpec(
+        controller=cfg.imitate,
+        gains=cfg.imitate_gains,
+        rounds=cfg.imitate_rounds,
+        first_steps=cfg.imitate_steps,
+        round_steps=cfg.imitate_round_steps,
+        noise=cfg.imitate_noise,
+    )
+
+
+#: TrainConfig's defaults, for the keys a run written before they existed lacks.
+_FIELD_DEFAULTS: dict[str, Any] = {
+    f.name: f.default
+    for f in dataclasses.fields(TrainConfig)
+    if f.default is not dataclasses.MISSING
+}
+
+
+def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
+    path = run_dir / "config.yml"
+    if not path.exists():
+        return
+    saved = yaml.safe_load(path.read_text()).get("config", {})
+    for key in ("algo", "backend", "env_id", "residual", "scale_fraction", "scale_accel_rad_s2",
+                "base_gains", "base_model", "decision_every", "start", "episode_s",
+                "reward_weights", "reward", "kernel_weights",
+                "max_path_distance", "action_penalty", "gate_rad",
+                "gate_deadband_rad", "prior_gain_per_rad", "imitate", "imitate_gains",
+                "imitate_rounds", "imitate_steps", "imitate_round_steps", "imitate_noise",
+                "demo_bc_weight"):  # fmt: skip
+        mine = getattr(cfg, key)
+        theirs = saved.get(key, _FIELD_DEFAULTS.get(key, mine))  # a key the run predates
+        if theirs != mine:
+            raise TrainConfigError(f"--resume: {key}={mine!r} differs from the run's {theirs!r}")
+
+
+# -- command line ----------------------------------------------------------------------
+#: TrainConfig fields with no flag of their own: ``overrides`` is ``--hp key=value``.
+NO_FLAG = ("overrides",)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """``ptrack train``'s arguments: ``--config``, ``--set``, a flag per
+    :class:`TrainConfig` field (``--env`` for ``env_id``) and ``--hp`` for the SB3
+    hyperparameters (:mod:`train.common.arguments`)."""
+    add_config_arguments(parser, TrainConfig, exclude=NO_FLAG, flags={"env_id": "--env"})
+    parser.add_argument(
+        "--hp", action="append", default=[], metavar="KEY=VALUE",
+        help="an SB3 hyperparameter over the YAML's (repeatable): the value read as YAML; "
+        "policy_kwargs and normalize may be literals like dict(net_arch=[64, 64])",
+    )  # fmt: skip
+
+
+def from_args(args: argparse.Namespace) -> TrainConfig:
+    """The config of parsed ``ptrack train`` arguments: the fields, with ``--hp`` merged
+    over the config file's ``overrides``."""
+    cfg = config_from_args(TrainConfig, args)
+    cfg.overrides = {**cfg.overrides, **parse_set(args.hp)}
+    return cfg
+
+
+def parse_args(argv: Sequence[str] | None = None) -> TrainConfig:
+    """A :class:`TrainConfig` from ``ptrack train`` arguments (errors exit with 2)."""
+    parser = argparse.ArgumentParser(prog="ptrack train")
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return from_args(args)
+    except InvalidConfigError as exc:
+        parser.error(str(exc))
+        raise  # not reached
+
+
+def to_argv(cfg: TrainConfig) -> list[str]:
+    """The ``ptrack train`` arguments that :func:`parse_args` turns back into ``cfg`` (the
+    fields that differ from the defaults, and ``out``): the standalone command of a run."""
+    words = config_to_argv(dataclasses.replace(cfg, overrides={}))
+    if "--out" not in words:
+        words = ["--out", cfg.out, *words]
+    return words + [w for k, v in cfg.overrides.items() for w in ("--hp", f"{k}={v}")]

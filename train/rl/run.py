@@ -1,0 +1,345 @@
+"""Train SAC, TD3 or PPO on a ptrack_gym env, pure or residual on a base controller.
+
+Run from the repository root::
+
+    ptrack train --algo sac --env ptrack_gym/TwoLinkTrack-v0 \\
+        --residual passivity --disturbance impulse:0.5 --steps 50000 --out runs/sac_tl
+
+Everything one run needs is one :class:`TrainConfig`; the CLI fills it (``--help``). The
+hyperparameters come from ``train/hyperparams/<algo>.yml`` (rl-baselines3-zoo format, see
+:mod:`train.rl.hyperparameters` and ``docs/rl.md``), then ``--hyperparams FILE``, then
+``--set key=value``. Every configuration error — unknown algorithm, env id, residual
+base, disturbance, env argument (checked by the env's own validator) or hyperparameter —
+raises :class:`TrainConfigError` (a ``ValueError``) or an argparse error *before* any env
+is built or any file written. Envs come from :func:`train.evaluation.envs.build_env`, checkpoints
+from :mod:`train.rl.checkpoints`.
+
+The run folder ``--out`` receives ``config.yml`` (the resolved config and
+hyperparameters), ``command.txt`` (one line per invocation), ``versions.json``,
+``model.zip`` and ``vecnormalize.pkl`` (final), ``best_model.zip`` (EvalCallback),
+``eval/`` and ``monitor/`` (per invocation), ``tb/`` (``--tensorboard``) and
+``checkpoints/rl_model_<steps>_steps.zip`` with the matching VecNormalize statistics and,
+for the newest checkpoint only, the replay buffer (the final state is always saved there
+too, so ``--resume`` can continue any finished or interrupted run). An interrupted run —
+Ctrl-C, or SIGTERM — saves ``model.zip`` and a checkpoint at the step it reached before it
+exits (nothing trained is lost, and ``model.zip`` is never older than the newest
+checkpoint), then re-raises ``KeyboardInterrupt``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import platform
+import shlex
+import signal
+import sys
+from collections.abc import Callable, Iterator, Sequence
+from functools import partial
+from importlib import metadata
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import gymnasium as gym
+import numpy as np
+import torch
+import yaml
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.logger import configure as configure_logger
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
+
+from train.evaluation.envs import (
+    build_decision_env,
+)
+from train.evaluation.policies import algo_class
+from train.rl.actor import (
+    ActorWarmupCallback,
+    add_actor_bc,
+    init_actor_log_std,
+    scale_actor_lr,
+    zero_init_actor,
+)
+from train.rl.checkpoints import (
+    CHECKPOINT_PREFIX,
+    PruningCheckpointCallback,
+    latest_checkpoint,
+    load_checkpoint,
+    save_checkpoint,
+    save_final,
+)
+from train.rl.config import DEMO_BC_STREAM, Resolved, TrainConfig, dagger_spec, validate
+from train.rl.hyperparameters import (
+    action_noise,
+)
+from train.rl.imitation import (
+    add_demo_bc,
+    dagger,
+    load_demonstrations,
+    save_demonstrations,
+)
+
+
+class TrainResult(NamedTuple):
+    """What :func:`run` returns."""
+
+    model: BaseAlgorithm  # the trained model (its envs are closed)
+    run_dir: Path  # the run folder
+    num_timesteps: int  # the model's step count at the end
+
+
+def imitate(res: Resolved, model: BaseAlgorithm, train_env: VecEnv, run_dir: Path) -> None:
+    """DAgger of ``res.cfg.imitate`` into ``model``'s actor on an env built like the
+    training env (``train.rl.imitation.dagger``, seeded by the run's seed); saves the
+    demonstrations and a checkpoint at step 0 — the imitation alone, the first point of
+    the run's learning curve (model and VecNormalize statistics; no replay buffer)."""
+    cfg = res.cfg
+    spec = dagger_spec(cfg)
+    env = _env_factory(res, cfg.disturbance)()
+    try:
+        vec_normalize = train_env if isinstance(train_env, VecNormalize) else None
+        demos = dagger(model, env, spec, cfg.seed, vec_normalize)  # type: ignore[arg-type]
+    finally:
+        env.close()
+    save_demonstrations(demos, run_dir, spec)
+    if isinstance(train_env, VecNormalize):
+        # The actor was fitted to these statistics (round 0's): frozen from here on, or
+        # the same actor would see other inputs as RL's episodes move them (measured: one
+        # seed's frozen actor went from 0 to 10 of 10 test episodes failed in 10 000 steps).
+        train_env.training = False
+    save_checkpoint(model, train_env, run_dir, replay_buffer=False)
+
+
+# -- environments ----------------------------------------------------------------------
+def _env_factory(res: Resolved, disturbance: str | None) -> Callable[[], gym.Env]:
+    c = res.cfg
+    return partial(
+        build_decision_env,
+        c.decision_every,
+        c.env_id,
+        c.residual,
+        c.scale_fraction,
+        res.control_hz,
+        res.max_episode_steps,
+        c.start,
+        disturbance,
+        c.reward_weights,
+        res.env_extra,
+        res.residual_kwargs,
+    )
+
+
+def make_envs(res: Resolved, run_dir: Path, session: str) -> tuple[VecEnv, VecEnv]:
+    """Training VecEnv (Monitor, optional VecNormalize) and the evaluation VecEnv (its
+    own VecNormalize with training=False, norm_reward=False; EvalCallback copies the
+    training obs statistics into it before every evaluation)."""
+    c = res.cfg
+    train_env = make_vec_env(
+        _env_factory(res, c.disturbance),
+        n_envs=res.n_envs,
+        seed=c.seed,
+        monitor_dir=str(run_dir / "monitor" / session),
+        vec_env_cls=DummyVecEnv,
+    )
+    eval_dist = c.disturbance if c.eval_disturbance is None else c.eval_disturbance
+    eval_env = make_vec_env(
+        _env_factory(res, eval_dist), n_envs=1, seed=c.seed + 1000, vec_env_cls=DummyVecEnv
+    )
+    if res.normalize_kwargs is not None:
+        train_env = VecNormalize(train_env, **res.normalize_kwargs)
+        eval_kwargs = {**res.normalize_kwargs, "norm_reward": False}
+        eval_env = VecNormalize(eval_env, training=False, **eval_kwargs)
+    return train_env, eval_env
+
+
+def versions() -> dict[str, str]:
+    """Python, platform and the versions of the packages a run depends on."""
+    out = {"python": sys.version.split()[0], "platform": platform.platform()}
+    for pkg in (
+        "ptrack_gym",
+        "gymnasium",
+        "stable-baselines3",
+        "torch",
+        "numpy",
+        "scipy",
+        "pybullet",
+        "PyYAML",
+        "sbx-rl",
+        "jax",
+    ):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
+
+
+def _yaml_safe(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _yaml_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_yaml_safe(v) for v in value]
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, type):
+        return f"{value.__module__}.{value.__qualname__}"
+    return repr(value)
+
+
+def write_run_files(res: Resolved, run_dir: Path, argv: Sequence[str] | None) -> None:
+    """config.yml (resolved), command.txt (appended), versions.json."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    config = {
+        "config": dataclasses.asdict(res.cfg),
+        "derived": {
+            "robot": res.robot,
+            "control_hz": res.control_hz,
+            "physics_hz": 1000.0,
+            "max_episode_steps": res.max_episode_steps,
+            "steps": res.steps,
+            "n_envs": res.n_envs,
+            "vec_normalize": res.normalize_kwargs,
+        },
+        "hyperparams": {**res.algo_kwargs, **res.special},
+    }
+    (run_dir / "config.yml").write_text(yaml.safe_dump(_yaml_safe(config), sort_keys=False))
+    args = list(sys.argv[1:] if argv is None else argv)
+    line = shlex.join(["ptrack", "train", *args])
+    with (run_dir / "command.txt").open("a") as fh:
+        fh.write(line + "\n")
+    (run_dir / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
+
+
+def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
+    """Validate ``cfg``, build the envs and the model (or resume), train, save.
+
+    Raises:
+        TrainConfigError: a bad config, before any env is built or any file written.
+    """
+    res = validate(cfg)
+    run_dir = Path(cfg.out)
+    torch.set_num_threads(cfg.torch_threads)
+    write_run_files(res, run_dir, argv)
+    start_steps = 0 if not cfg.resume else latest_checkpoint(run_dir)[0]  # type: ignore[index]
+    train_env, eval_env = make_envs(res, run_dir, session=f"from_{start_steps}")
+    try:
+        if cfg.resume:
+            model, train_env = load_checkpoint(
+                algo_class(cfg.algo, cfg.backend), run_dir, train_env, eval_env,
+                res.normalize_kwargs is not None, cfg.device, cfg.tensorboard,
+            )  # fmt: skip
+            if cfg.imitate is not None and isinstance(train_env, VecNormalize):
+                train_env.training = False  # the imitation's statistics stay frozen
+        else:
+            kwargs = dict(res.algo_kwargs)
+            noise = action_noise(res.special, int(np.prod(train_env.action_space.shape)))
+            if noise is not None:
+                kwargs["action_noise"] = noise
+            model = algo_class(cfg.algo, cfg.backend)(
+                env=train_env,
+                tensorboard_log=str(run_dir / "tb") if cfg.tensorboard else None,
+                verbose=cfg.verbose,
+                seed=cfg.seed,
+                device=cfg.device,
+                **kwargs,
+            )
+            if cfg.zero_init_residual:
+                zero_init_actor(model)
+            if cfg.init_log_std is not None:
+                init_actor_log_std(model, cfg.init_log_std)
+            if cfg.imitate is not None:
+                try:
+                    imitate(res, model, train_env, run_dir)
+                except BaseException:
+                    # Interrupted or failed: nothing trained yet to keep. Free the folder,
+                    # so the same command starts over (a config.yml alone would make it
+                    # refuse, with no checkpoint to --resume from).
+                    (run_dir / "config.yml").unlink(missing_ok=True)
+                    raise
+        if cfg.actor_lr_scale != 1.0:  # fresh or resumed: the hooks are not saved
+            scale_actor_lr(model, cfg.actor_lr_scale)
+        if cfg.actor_bc_weight:  # likewise
+            add_actor_bc(model, cfg.actor_bc_weight)
+        if cfg.demo_bc_weight:  # likewise, from the run's saved demonstrations
+            demo_obs, demo_act = load_demonstrations(run_dir)
+            add_demo_bc(
+                model,
+                demo_obs,
+                demo_act,
+                cfg.demo_bc_weight,
+                [cfg.seed, DEMO_BC_STREAM, model.num_timesteps],  # type: ignore[arg-type]
+            )
+        # An explicit logger in the run folder: without one SB3 creates /tmp/SB3-<date>.
+        formats = (
+            ["csv"]
+            + (["stdout"] if cfg.verbose else [])
+            + (["tensorboard"] if cfg.tensorboard else [])
+        )
+        model.set_logger(configure_logger(str(run_dir / "tb" / f"from_{start_steps}"), formats))
+        callbacks: list[BaseCallback] = []
+        if cfg.critic_warmup_steps > 0:
+            until = int(model.learning_starts) + cfg.critic_warmup_steps  # type: ignore[attr-defined]
+            callbacks.append(ActorWarmupCallback(until))
+        if cfg.checkpoint_freq > 0:
+            callbacks.append(
+                PruningCheckpointCallback(
+                    save_freq=max(cfg.checkpoint_freq // res.n_envs, 1),
+                    save_path=str(run_dir / "checkpoints"),
+                    name_prefix=CHECKPOINT_PREFIX,
+                    save_replay_buffer=True,
+                    save_vecnormalize=True,
+                )
+            )
+        if cfg.eval_freq > 0:
+            callbacks.append(
+                EvalCallback(
+                    eval_env,
+                    n_eval_episodes=cfg.eval_episodes,
+                    eval_freq=max(cfg.eval_freq // res.n_envs, 1),
+                    best_model_save_path=str(run_dir),
+                    log_path=str(run_dir / "eval" / f"from_{start_steps}"),
+                    deterministic=True,
+                    verbose=cfg.verbose,
+                )
+            )
+        try:
+            model.learn(
+                total_timesteps=res.steps,
+                callback=callbacks,
+                reset_num_timesteps=not cfg.resume,
+                tb_log_name=cfg.algo,
+                progress_bar=cfg.progress_bar,
+            )
+        except KeyboardInterrupt:
+            # Ctrl-C (or SIGTERM, see sigterm_as_interrupt): keep every step taken, as
+            # rl-zoo3 does — model.zip and a checkpoint at this step; --resume goes on.
+            save_final(model, train_env, run_dir)
+            raise
+        save_final(model, train_env, run_dir)
+    finally:
+        train_env.close()
+        eval_env.close()
+    return TrainResult(model, run_dir, model.num_timesteps)
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Within the block, SIGTERM raises ``KeyboardInterrupt`` in this process (enter it
+    from the main thread), so a run terminated while it trains saves its state as an
+    interrupted one does: the CLI and the campaign's worker processes (which
+    ``Pool.terminate`` stops with SIGTERM). The previous handler is restored on exit — an
+    idle worker terminated after its run then exits quietly."""
+
+    def _raise(signum: int, frame: Any) -> None:
+        # One-shot: a second SIGTERM (Pool.terminate's, after a signal to the whole process
+        # group) is ignored, so it cannot cut the save it started short.
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGTERM, _raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)

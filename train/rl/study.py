@@ -1,0 +1,141 @@
+"""Learning curves and final figures of a multi-seed RL study, from its checkpoints.
+
+A *study* is a folder of ``ptrack train`` runs (``ptrack campaign``
+trains one) that share env, algorithm, training disturbance, control rate, episode length
+and start mode, and differ in seed and in their *group* — the campaign's group name when
+the folder is named ``<group>_s<seed>``, else pure RL or a residual on a base controller
+(``residual-<base>``, ``-gated`` with a path-error gate) —, each group with its own reward
+and safeguards (the same within a group). This script evaluates **every checkpoint of
+every run** and the base controllers alone (every group's base, computed torque and
+PD + gravity) through one ``train.evaluation.config`` sweep (``sb3:<run>@<steps>`` entries), so
+every policy meets the same start states and the same disturbance schedules, under the
+training disturbance and undisturbed; then the **final checkpoints** under every preset
+of ``--presets`` at level 1 in a second sweep (``final/``). It then writes:
+
+* ``learning_curves.png`` — path-distance RMS (rad, log scale) against training steps:
+  one thin line per run, the median over seeds thick, per group; the base controller
+  and computed torque as horizontal lines; one panel per disturbance; and the runs' own
+  training episodes (reward per step, from their ``Monitor`` logs) in a last panel;
+* ``final.md`` (also printed) — per preset and group, at the largest step count every run
+  has a checkpoint of (one budget for all), the path-distance RMS per seed and pooled, and
+  the paired difference to the group's base alone (pure RL: to PD + gravity) with a
+  bootstrap 95 % CI over the pooled (run, episode) pairs; the samples each run needed to
+  reach its base's path distance under the training disturbance; and rliable's aggregate
+  (IQM, stratified bootstrap over training seeds) over the presets;
+* the sweep's own ``episodes.csv``, ``summary.csv`` and figures.
+
+Usage::
+
+    ptrack study --runs runs/study --out results/rl_study --episodes 10
+
+``--resume`` continues an interrupted evaluation (the sweeps' ``episodes.csv``).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from pathlib import Path
+
+from train.evaluation.report import aggregate
+from train.evaluation.results import load_frame
+from train.evaluation.sweep import run_sweep
+from train.plots.rl import plot_curves
+
+#: Checkpoint file names of ``train.rl.run`` (SB3's CheckpointCallback).
+from train.rl.study_runs import (
+    FINAL_PRESETS,
+    GROUP_KEY_DEFAULTS,
+    GROUP_KEYS,
+    SHARED_KEY_DEFAULTS,
+    discover,
+    final_steps,
+    is_checkpoint_entry,
+    reference_of,
+    sweep_config,
+    thin,
+)
+from train.rl.study_tables import (
+    aggregate_frame,
+    curve_frame,
+    final_table,
+    samples_to_reach,
+    training_curves,
+)
+
+__all__ = [
+    "GROUP_KEYS",
+    "GROUP_KEY_DEFAULTS",
+    "SHARED_KEY_DEFAULTS",
+    "discover",
+    "is_checkpoint_entry",
+    "main",
+    "reference_of",
+    "samples_to_reach",
+    "sweep_config",
+    "thin",
+]
+
+
+def main(argv: Sequence[str] | None = None) -> Path:
+    p = argparse.ArgumentParser(prog="ptrack study", description=__doc__.split("\n\n")[0])
+    p.add_argument("--runs", type=Path, required=True, help="folder of train.rl.run runs")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--episodes", type=int, default=10, help="paired test episodes")
+    p.add_argument("--workers", type=int, default=0, help="worker processes (0: cores)")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted sweep")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument(
+        "--presets",
+        default=",".join(FINAL_PRESETS),
+        help="comma-separated presets of the final checkpoints' sweep (level 1)",
+    )
+    p.add_argument(
+        "--every", type=int, default=None, help="evaluate only checkpoints at multiples of this"
+    )
+    args = p.parse_args(argv)
+
+    runs = discover(args.runs)
+    if args.every is not None:
+        runs = thin(runs, args.every)
+    cfg = sweep_config(runs, args.episodes, args.out, args.workers)
+    final_cfg = sweep_config(
+        runs, args.episodes, args.out / "final", args.workers, args.presets.split(",")
+    )
+    cfg.validate()
+    final_cfg.validate()
+    progress = not args.no_progress
+    out = run_sweep(cfg, resume=args.resume, progress=progress, show=False)
+    run_sweep(final_cfg, resume=args.resume, progress=progress, show=False)
+    df = load_frame(out / "episodes.csv")
+    final = load_frame(out / "final" / "episodes.csv")
+    curves = curve_frame(df, runs)
+    curves.to_csv(out / "learning_curves.csv", index=False, float_format="%.17g")
+    baselines = {
+        dist: gd[~gd["controller"].map(is_checkpoint_entry)]
+        .groupby("controller")["path_dist_rms"]
+        .mean()
+        for dist, gd in df.groupby("disturbance")
+    }
+    plot_curves(curves, training_curves(runs), baselines, out / "learning_curves.png")
+    train_dist = str(runs[0].config["disturbance"]).partition(":")[0]
+    agg = aggregate(
+        aggregate_frame(final, runs), "path_dist_rms", out, cfg.bootstrap_resamples, seed=0
+    )
+    text = "\n\n".join(
+        [
+            f"## Final checkpoints ({final_steps(runs)} steps), presets at level 1",
+            final_table(final, runs, cfg.bootstrap_resamples),
+            "## Samples to reach the reference",
+            samples_to_reach(curves, baselines, runs, train_dist),
+            "## Aggregate over the presets (rliable)",
+            agg,
+        ]
+    )
+    (out / "final.md").write_text(text + "\n")
+    print(text)
+    return out
+
+
+if __name__ == "__main__":
+    main()

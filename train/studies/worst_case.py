@@ -1,0 +1,211 @@
+"""The episodes of an adversarial search (:mod:`train.studies.adversary`): the searchable
+space of a disturbance family at an energy (:class:`Searchable`), one episode's cost
+(:func:`evaluate`), and the replay of a found worst case (:func:`replay`; a spec replays
+bit-identically)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import yaml
+
+import ptrack_gym  # noqa: F401  (registers the envs)
+from agents.policy import ControllerPolicy
+from agents.registry import make_controller, tuned_rates
+from ptrack_gym.robots import profile_for_env_id
+from train.evaluation.episode import rollout
+from train.studies.adversary_config import AdversaryConfig
+
+
+@dataclass(frozen=True)
+class Searchable:
+    """One family at one energy on one robot: its parameters, their spec, its cost window."""
+
+    cfg: AdversaryConfig
+    family: str
+    energy_j: float
+
+    @property
+    def n(self) -> int:
+        return profile_for_env_id(self.cfg.env_id).n
+
+    @property
+    def links(self) -> list[str | None]:
+        return list(self.cfg.push_links) or [None] if self.family == "push" else [None]
+
+    def space(self, trial: Any) -> dict[str, Any]:
+        """Suggest this family's parameters on an Optuna trial."""
+        c = self.cfg
+        params: dict[str, Any] = {}
+        if self.family == "periodic":
+            params["frequency_hz"] = trial.suggest_float("frequency_hz", *c.frequency_hz, log=True)
+        else:
+            params["onset_s"] = trial.suggest_float("onset_s", *c.onset_s)
+        dims = 3 if self.family == "push" else self.n
+        params["direction"] = [trial.suggest_float(f"x{i}", -1.0, 1.0) for i in range(dims)]
+        if self.family == "push" and len(self.cfg.push_links) > 1:
+            params["link"] = trial.suggest_categorical("link", list(self.cfg.push_links))
+        elif self.family == "push" and self.cfg.push_links:
+            params["link"] = self.cfg.push_links[0]
+        return params
+
+    def midpoint(self, link: str | None) -> dict[str, Any]:
+        """A valid parameter set (for the checks before running)."""
+        dims = 3 if self.family == "push" else self.n
+        params: dict[str, Any] = {"onset_s": self.cfg.onset_s[0], "direction": [1.0] * dims}
+        if self.family == "periodic":
+            params = {"frequency_hz": self.cfg.frequency_hz[0], "direction": [1.0] * dims}
+        if link is not None:
+            params["link"] = link
+        return params
+
+    def spec(self, params: dict[str, Any]) -> dict[str, Any]:
+        """The disturbance spec of a parameter set (replays bit-identically)."""
+        c = self.cfg
+        direction = [float(x) for x in params["direction"]]
+        if not np.any(direction):
+            direction[0] = 1.0  # a zero direction (measure zero) means the first axis
+        if self.family == "impulse":
+            return {
+                "type": "impulse", "energy_j": self.energy_j, "duration_s": c.impulse_duration_s,
+                "onset_s": float(params["onset_s"]), "direction": direction,
+                "energy_mode": c.energy_mode,
+            }  # fmt: skip
+        if self.family == "push":
+            spec = {
+                "type": "push", "energy_j": self.energy_j, "duration_s": c.push_duration_s,
+                "onset_s": float(params["onset_s"]), "direction": direction,
+            }  # fmt: skip
+            if params.get("link") is not None:
+                spec["link"] = params["link"]
+            return spec
+        return {
+            "type": "periodic", "energy_j": self.energy_j,
+            "frequency_hz": float(params["frequency_hz"]), "direction": direction,
+        }  # fmt: skip
+
+    def window(self, spec: dict[str, Any]) -> tuple[float, float]:
+        """The cost window (s) of a spec."""
+        if self.family == "periodic":
+            return self.cfg.periodic_s - self.cfg.post_s, self.cfg.periodic_s
+        end = spec["onset_s"] + spec["duration_s"]
+        return end, end + self.cfg.post_s
+
+    def episode_s(self) -> float:
+        if self.family == "periodic":
+            return self.cfg.periodic_s
+        duration = (
+            self.cfg.impulse_duration_s if self.family == "impulse" else self.cfg.push_duration_s
+        )
+        return self.cfg.onset_s[1] + duration + self.cfg.post_s
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What one episode gave the search."""
+
+    cost: float  # path-distance RMS over the window (rad); failure distance if unstable
+    unstable: bool
+    work_j: float  # ∫ q̇ᵀτ_d over the episode (J)
+    peak_speed_rad_s: float  # max |q̇| over the episode
+    peak_tau_frac: float  # max |τ| / τ_max of the applied (clipped) torque
+
+
+def evaluate(
+    env_id: str,
+    controller: str,
+    spec: dict[str, Any],
+    reset_seed: int,
+    episode_s: float,
+    window: tuple[float, float],
+    control_hz: float,
+    failure_distance_rad: float,
+    gains: str | dict[str, Any] = "default",
+) -> Outcome:
+    """One episode of ``controller`` (with ``gains``) under ``spec`` from ``reset_seed``;
+    deterministic."""
+    steps = round(episode_s * control_hz)
+    env = gym.make(
+        env_id,
+        disturbance=spec,
+        control_hz=control_hz,
+        horizon_s=episode_s,
+        max_episode_steps=steps,
+    )
+    try:
+        policy = ControllerPolicy(env, make_controller(controller, env, gains))
+        record, _ = rollout(env, policy, reset_seed)
+    finally:
+        env.close()
+    t, dist = record.t_s, record.path_distance
+    inside = (t > window[0]) & (t <= window[1] + 1e-9)
+    if record.unstable:
+        cost = failure_distance_rad
+    else:
+        cost = float(np.sqrt(np.mean(dist[inside] ** 2))) if np.any(inside) else float("nan")
+    return Outcome(
+        cost=cost,
+        unstable=record.unstable,
+        work_j=record.disturbance_work_j,
+        peak_speed_rad_s=float(np.max(np.abs(record.qd))),
+        peak_tau_frac=float(np.max(np.abs(record.tau_nm) / record.torque_limits_nm)),
+    )
+
+
+def evaluate_task(args: tuple[Any, ...]) -> Outcome:
+    return evaluate(*args)
+
+
+def controller_gains(cfg: AdversaryConfig, controller: str) -> str | dict[str, Any]:
+    """The gains argument of ``controller``'s episodes: "default", or the tuned rates
+    themselves (recorded in ``worst.yml``, so a replay does not depend on a later tuning)."""
+    if cfg.gains == "tuned":
+        return tuned_rates(profile_for_env_id(cfg.env_id).name, controller)
+    return cfg.gains
+
+
+def replay(worst_yml: Path, controller: str, family: str, energy_j: float) -> Outcome:
+    """Re-run a worst case of ``worst.yml`` (bit-identical to the searched episode)."""
+    data = yaml.safe_load(worst_yml.read_text())
+    entry = data["worst"][controller][family][f"{energy_j:g}"]
+    cfg = AdversaryConfig(**{**yaml.safe_load((worst_yml.parent / "config.yml").read_text())})
+    target = Searchable(cfg, family, energy_j)
+    spec = entry["spec"]
+    return evaluate(
+        cfg.env_id, controller, spec, cfg.reset_seed, target.episode_s(), target.window(spec),
+        cfg.control_hz, cfg.failure_distance_rad, entry.get("gains", cfg.gains),
+    )  # fmt: skip
+
+
+def replay_all(worst_yml: Path) -> list[str]:
+    """Re-run every worst case of a search's ``worst.yml``: one line each, the replayed
+    cost beside the searched one (a spec replays bit-identically: the two are equal)."""
+    data = yaml.safe_load(worst_yml.read_text())
+    lines = []
+    for controller, families in data["worst"].items():
+        for family, energies in families.items():
+            for energy, entry in energies.items():
+                outcome = replay(worst_yml, controller, family, float(energy))
+                lines.append(
+                    f"{controller} {family} {energy} J: cost {outcome.cost:.6g} rad "
+                    f"(searched {entry['cost_rad']:.6g}), unstable={outcome.unstable}"
+                )
+    return lines
+
+
+def check_targets(cfg: AdversaryConfig) -> None:
+    """Every family and link of ``cfg`` exists on its robot: one env per family and link
+    checks the spec at the middle of the searched space (before any episode).
+
+    Raises:
+        InvalidConfigError: a family or push link the robot's env refuses.
+    """
+    for family in cfg.families:
+        probe = Searchable(cfg, family, cfg.energies_j[0])
+        for link in probe.links:
+            spec = probe.spec(probe.midpoint(link))
+            gym.make(cfg.env_id, disturbance=spec, control_hz=cfg.control_hz).close()
