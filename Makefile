@@ -63,7 +63,7 @@ test: lint
 
 # The documentation site (MkDocs material; API pages from the docstrings) into site/.
 docs: setup
-	$(PY) -m mkdocs build --strict --site-dir site
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict --site-dir site
 
 bench: setup
 	$(PY) bench/env_step.py

@@ -18,8 +18,9 @@ import pandas as pd
 import yaml
 
 from ptrack_gym.errors import InvalidConfigError
+from train.cli import run_command
 from train.cli import run_command as _run_command
-from train.rl.study import discover, main, sweep_config
+from train.rl.study import discover, sweep_config
 
 train_main = functools.partial(_run_command, "train")
 
@@ -44,8 +45,24 @@ def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_study_writes_curves_figure_and_final_table(study: Path, tmp_path: Path) -> None:
-    out = main(["--runs", str(study), "--out", str(tmp_path / "rep"), "--episodes", "2",
-                "--workers", "1", "--no-progress"])  # fmt: skip
+    assert (
+        run_command(
+            "study",
+            [
+                "--runs",
+                str(study),
+                "--out",
+                str(tmp_path / "rep"),
+                "--episodes",
+                "2",
+                "--workers",
+                "1",
+                "--no-progress",
+            ],
+        )
+        == 0
+    )
+    out = tmp_path / "rep"
     curves = pd.read_csv(out / "learning_curves.csv")
     # every run × checkpoint (100, 200) × disturbance (none, impulse) has its mean
     assert len(curves) == 3 * 2 * 2

@@ -9,7 +9,7 @@ docstrings). SB3 hyperparameters of ``ptrack train`` come apart, under ``--hp ke
 ``evaluate``       paired evaluation sweep (:class:`train.evaluation.config.EvalConfig`)
 ``train``          one RL run (:class:`train.rl.config.TrainConfig`)
 ``campaign``       many RL runs from one campaign file (:mod:`train.rl.campaign`)
-``study``          learning curves and final tables of a campaign (:mod:`train.rl.study`)
+``study``          learning curves and final tables of RL runs (:mod:`train.rl.study`)
 ``tune``           equal-budget gain tuning (:class:`train.studies.tune.TuneConfig`)
 ``fronts``         error against effort (:class:`train.studies.fronts.FrontConfig`)
 ``adversary``      adversarial disturbance search (:mod:`train.studies.adversary`)
@@ -84,6 +84,22 @@ def _train(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
     with sigterm_as_interrupt():
         result = run(cfg, args.words)
     print(f"trained {result.num_timesteps} steps; run folder: {result.run_dir}")
+    return 0
+
+
+def _study_parser(p: argparse.ArgumentParser) -> None:
+    from train.rl.study import StudyConfig
+
+    add_config_arguments(p, StudyConfig)
+    _resume(p, "evaluation")
+    _progress(p)
+
+
+def _study(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+    from train.rl.study import StudyConfig, run_study
+
+    out = run_study(config_from_args(StudyConfig, args), args.resume, not args.no_progress)
+    print((out / "final.md").read_text())
     return 0
 
 
@@ -252,7 +268,7 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Runner
     "evaluate": ("paired evaluation sweep", _evaluate_parser, _evaluate),
     "train": ("train one RL policy (SB3)", _train_parser, _train),
     "campaign": ("train the runs of a campaign file", *_delegate("train.rl.campaign")),
-    "study": ("learning curves and final tables of RL runs", *_delegate("train.rl.study")),
+    "study": ("learning curves and final tables of RL runs", _study_parser, _study),
     "tune": ("equal-budget gain tuning (Optuna)", _tune_parser, _tune),
     "fronts": ("error against effort fronts", _fronts_parser, _fronts),
     "adversary": ("adversarial disturbance search", _adversary_parser, _adversary),

@@ -33,10 +33,10 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
-from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
+from ptrack_gym.errors import InvalidConfigError
 from train.evaluation.report import aggregate
 from train.evaluation.results import load_frame
 from train.evaluation.sweep import run_sweep
@@ -67,46 +67,55 @@ __all__ = [
     "GROUP_KEYS",
     "GROUP_KEY_DEFAULTS",
     "SHARED_KEY_DEFAULTS",
+    "StudyConfig",
     "discover",
     "is_checkpoint_entry",
-    "main",
     "reference_of",
+    "run_study",
     "samples_to_reach",
     "sweep_config",
     "thin",
 ]
 
 
-def main(argv: Sequence[str] | None = None) -> Path:
-    p = argparse.ArgumentParser(prog="ptrack study", description=__doc__.split("\n\n")[0])
-    p.add_argument("--runs", type=Path, required=True, help="folder of train.rl.run runs")
-    p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument("--episodes", type=int, default=10, help="paired test episodes")
-    p.add_argument("--workers", type=int, default=0, help="worker processes (0: cores)")
-    p.add_argument("--resume", action="store_true", help="continue an interrupted sweep")
-    p.add_argument("--no-progress", action="store_true")
-    p.add_argument(
-        "--presets",
-        default=",".join(FINAL_PRESETS),
-        help="comma-separated presets of the final checkpoints' sweep (level 1)",
-    )
-    p.add_argument(
-        "--every", type=int, default=None, help="evaluate only checkpoints at multiples of this"
-    )
-    args = p.parse_args(argv)
+@dataclass
+class StudyConfig:
+    """An RL study: which runs, how many test episodes, where the results go."""
 
-    runs = discover(args.runs)
-    if args.every is not None:
-        runs = thin(runs, args.every)
-    cfg = sweep_config(runs, args.episodes, args.out, args.workers)
-    final_cfg = sweep_config(
-        runs, args.episodes, args.out / "final", args.workers, args.presets.split(",")
-    )
-    cfg.validate()
+    runs: str
+    """The folder of ``ptrack train`` runs (``ptrack campaign --out``)."""
+    out: str
+    """Output folder."""
+    episodes: int = 10
+    """Paired test episodes per policy and disturbance."""
+    workers: int = 0
+    """Episode runners (0: the number of cores)."""
+    presets: list[str] = field(default_factory=lambda: list(FINAL_PRESETS))
+    """Presets of the final checkpoints' sweep (level 1)."""
+    every: int | None = None
+    """Evaluate only the checkpoints at multiples of this many steps (None: all)."""
+
+    def validate(self) -> None:
+        """Raise :class:`InvalidConfigError` naming the first bad field."""
+        if self.episodes < 1 or self.workers < 0 or (self.every is not None and self.every < 1):
+            raise InvalidConfigError("episodes and every must be >= 1, workers >= 0")
+        if not self.presets:
+            raise InvalidConfigError("presets must not be empty")
+
+
+def run_study(cfg: StudyConfig, resume: bool = False, progress: bool = True) -> Path:
+    """Evaluate every checkpoint of ``cfg.runs`` and the final ones under every preset;
+    write the curves, ``final.md`` and the figures (module docstring); return the folder."""
+    out = Path(cfg.out)
+    runs = discover(Path(cfg.runs))
+    if cfg.every is not None:
+        runs = thin(runs, cfg.every)
+    sweep_cfg = sweep_config(runs, cfg.episodes, out, cfg.workers)
+    final_cfg = sweep_config(runs, cfg.episodes, out / "final", cfg.workers, cfg.presets)
+    sweep_cfg.validate()
     final_cfg.validate()
-    progress = not args.no_progress
-    out = run_sweep(cfg, resume=args.resume, progress=progress, show=False)
-    run_sweep(final_cfg, resume=args.resume, progress=progress, show=False)
+    run_sweep(sweep_cfg, resume=resume, progress=progress, show=False)
+    run_sweep(final_cfg, resume=resume, progress=progress, show=False)
     df = load_frame(out / "episodes.csv")
     final = load_frame(out / "final" / "episodes.csv")
     curves = curve_frame(df, runs)
@@ -119,13 +128,12 @@ def main(argv: Sequence[str] | None = None) -> Path:
     }
     plot_curves(curves, training_curves(runs), baselines, out / "learning_curves.png")
     train_dist = str(runs[0].config["disturbance"]).partition(":")[0]
-    agg = aggregate(
-        aggregate_frame(final, runs), "path_dist_rms", out, cfg.bootstrap_resamples, seed=0
-    )
+    resamples = sweep_cfg.bootstrap_resamples
+    agg = aggregate(aggregate_frame(final, runs), "path_dist_rms", out, resamples, seed=0)
     text = "\n\n".join(
         [
             f"## Final checkpoints ({final_steps(runs)} steps), presets at level 1",
-            final_table(final, runs, cfg.bootstrap_resamples),
+            final_table(final, runs, resamples),
             "## Samples to reach the reference",
             samples_to_reach(curves, baselines, runs, train_dist),
             "## Aggregate over the presets (rliable)",
@@ -133,9 +141,4 @@ def main(argv: Sequence[str] | None = None) -> Path:
         ]
     )
     (out / "final.md").write_text(text + "\n")
-    print(text)
     return out
-
-
-if __name__ == "__main__":
-    main()
