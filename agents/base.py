@@ -35,8 +35,12 @@ FloatArray = NDArray[np.float64]
 def state_arrays(q: Any, qd: Any) -> tuple[FloatArray, FloatArray]:
     """(q, q̇) as native float64 arrays (rad, rad/s): any real dtype or byte order a user
     passes (float16, float32, longdouble, big-endian, ints) is cast once here, so the
-    compiled kernels and the model see the one dtype they are built for."""
-    return np.asarray(q, dtype=np.float64), np.asarray(qd, dtype=np.float64)
+    compiled kernels and the model see the one dtype and layout they are built for (a
+    strided view is copied: the kernels are compiled for contiguous arrays)."""
+    return (
+        np.ascontiguousarray(q, dtype=np.float64),
+        np.ascontiguousarray(qd, dtype=np.float64),
+    )
 
 
 @runtime_checkable

@@ -16,29 +16,23 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from agents.base import ControlContext, FeatureBlock, FloatArray, state_arrays
-from agents.gains import Gain, cap_bandwidth, check_gain, gain_vector, rates
-from agents.reference_clock import (
-    ReferenceClock,
-    ReferenceErrors,
-    error_diagnostics,
-    time_indexed_features,
-)
+from agents.base import ControlContext, FloatArray
+from agents.gains import DiagonalGains, Gain, cap_bandwidth, gain_vector, rates
+from agents.reference_clock import ReferenceErrors
+from agents.time_indexed import TimeIndexedController
 from ptrack_gym.paths import ReferencePath
 from ptrack_gym.robots.model import RobotModel
 
+#: The gain rates (:class:`agents.registry.RateSource`): ω (rad/s) and ζ, ω the bandwidth.
 NAME = "computed_torque"
-#: Generic default rates: ω (rad/s), ζ.
 DEFAULT_RATES = {"omega": 20.0, "zeta": 1.0}
-#: What ``python -m train.tune`` searches: rate → (low, high, log scale).
-#: The rates one gain scale multiplies (``python -m train.fronts``): the bandwidth.
 BANDWIDTHS = ("omega",)
 TUNABLE = {"omega": (3.0, 100.0, True), "zeta": (0.5, 2.0, False)}
 
 
 @dataclass(frozen=True)
-class ComputedTorqueGains:
-    """Gains of :class:`ComputedTorqueController`.
+class ComputedTorqueGains(DiagonalGains):
+    """Gains of :class:`ComputedTorqueController`, diagonal (:class:`~agents.gains.DiagonalGains`).
 
     Attributes:
         kp_1_s2: K_p (1/s²), the stiffness of the error dynamics ë + K_d ė + K_p e = 0.
@@ -48,13 +42,9 @@ class ComputedTorqueGains:
     kp_1_s2: Gain
     kd_1_s: Gain
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "kp_1_s2", check_gain(self.kp_1_s2, "kp_1_s2"))
-        object.__setattr__(self, "kd_1_s", check_gain(self.kd_1_s, "kd_1_s"))
-
     @classmethod
     def from_bandwidth(cls, omega_rad_s: float, zeta: float = 1.0) -> ComputedTorqueGains:
-        """K_p = ω², K_d = 2ζω on every joint."""
+        """K_p = ω², K_d = 2ζω on every joint (ω in rad/s)."""
         return cls(kp_1_s2=omega_rad_s**2, kd_1_s=2.0 * zeta * omega_rad_s)
 
 
@@ -70,69 +60,27 @@ def default_gains(ctx: ControlContext) -> ComputedTorqueGains:
     return gains_from_rates(ctx, None)
 
 
-class ComputedTorqueController:
-    """Computed torque on the nominal model, tracking q_r(s) with an internal clock s.
+class ComputedTorqueController(TimeIndexedController):
+    """Computed torque (module docstring) on the nominal model, tracking q_r(s), s = s₀ + t;
+    constructed, reset and stepped as :class:`~agents.time_indexed.TimeIndexedController`
+    with :class:`ComputedTorqueGains`."""
 
-    The clock is set to the env's reference phase by :meth:`reset` and advanced by ``dt``
-    in :meth:`step`, so s = s₀ + t: the reference is time-indexed.
-
-    Args:
-        model: the controller's nominal dynamics model (never the simulator).
-        path: the reference path q_r(s), s in seconds.
-        gains: K_p (1/s²) and K_d (1/s), diagonal.
-
-    Raises:
-        InvalidConfigError: (a ``ValueError``) bad gains, or a model/path mismatch.
-    """
+    gains_type = ComputedTorqueGains
+    rates_to_gains = staticmethod(gains_from_rates)
+    gains: ComputedTorqueGains
 
     def __init__(self, model: RobotModel, path: ReferencePath, gains: ComputedTorqueGains) -> None:
-        if not isinstance(gains, ComputedTorqueGains):
-            raise TypeError(f"gains must be ComputedTorqueGains, got {type(gains).__name__}")
-        self.clock = ReferenceClock(model, path)
-        self.model = model
-        self.path = path
-        self.gains = gains
-        self.n = model.n
+        super().__init__(model, path, gains)
         self.kp = gain_vector(gains.kp_1_s2, self.n, "kp_1_s2")  # (n,) 1/s²
         self.kd = gain_vector(gains.kd_1_s, self.n, "kd_1_s")  # (n,) 1/s
-        self._last: tuple[float, ReferenceErrors] | None = None  # (s after, errors)
-        self._s0 = 0.0
 
-    def reset(self, q: FloatArray, qd: FloatArray, s_ref: float) -> None:
-        """Start the clock at s = ``s_ref`` (s)."""
-        self.clock.reset(s_ref)
-        self._last, self._s0 = None, float(s_ref)
-
-    def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
-        """τ = ID(q, q̇, q̈_r + K_d ė + K_p e) (N·m), shape (n,); then s ← s + dt.
-
-        One inverse-dynamics call gives M(q) v + C(q, q̇) q̇ + g(q) exactly.
-        """
-        q, qd = state_arrays(q, qd)
-        err = self.clock.errors(q, qd, dt)
+    def torque(self, q: FloatArray, qd: FloatArray, err: ReferenceErrors) -> FloatArray:
+        """τ = ID(q, q̇, q̈_r + K_d ė + K_p e) (N·m), shape (n,): one inverse-dynamics call
+        gives M(q) v + C(q, q̇) q̇ + g(q) exactly."""
         v = err.qdd_r + self.kd * err.ed + self.kp * err.e  # (n,) rad/s²
-        tau = self.model.inverse_dynamics(q, qd, v)
-        self._last = (self.clock.advance(dt), err)
-        return tau
-
-    def diagnostics(self) -> dict[str, float]:
-        """``s``: the clock after the last step (s), equal to the env's ``s_ref`` then;
-        ``tracking_error`` |e| (rad) and ``velocity_error`` |ė| (rad/s) of the state
-        passed to the last step (against q_r(s − dt))."""
-        return {"s": self._s0} if self._last is None else error_diagnostics(*self._last)
-
-    def residual_features(self, max_speed_rad_s: float) -> FeatureBlock:
-        """e, ė against the clock (see :func:`agents.reference_clock.time_indexed_features`)."""
-        return time_indexed_features(self.clock, self.n, max_speed_rad_s)
+        return self.model.inverse_dynamics(q, qd, v)
 
 
-def build(
-    ctx: ControlContext, gains: ComputedTorqueGains | Mapping[str, float] | None = None
-) -> ComputedTorqueController:
-    """The controller for a context: its default gains, the given gains, or gains from the
-    given rates (a mapping, e.g. tuned ones)."""
-    if gains is None:
-        gains = default_gains(ctx)
-    elif isinstance(gains, Mapping):
-        gains = gains_from_rates(ctx, gains)
-    return ComputedTorqueController(ctx.model, ctx.path, gains)
+#: The controller for a context: default gains, the given gains, or gains from given rates
+#: (:meth:`~agents.time_indexed.TimeIndexedController.build`).
+build = ComputedTorqueController.build

@@ -13,20 +13,22 @@ gain acts through the coupled arm (a stiffness or damping scaled by the home ine
 applied without M(q)), its fastest coupled mode on the path may turn at most
 :data:`MAX_MODE_ANGLE_PER_SAMPLE` rad and damp at most :data:`MAX_DAMPING_PER_SAMPLE` per
 control sample (:func:`max_mode_frequency`, :func:`cap_coupled_bandwidth`): the coupled
-modes of a folded arm or a light wrist run up to ~6× faster than the per-joint estimate,
-and a zero-order hold loses its continuous-time margin there.
+modes of a folded arm or a light wrist run faster than the per-joint estimate, and a
+zero-order hold loses its continuous-time margin there.
 """
 
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from agents.base import FloatArray
+from agents.base import ControlContext, FloatArray
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.paths import ReferencePath
-from ptrack_gym.robots.model import RobotModel
+from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
 
 #: A diagonal gain: one number for every joint, or one per joint.
 Gain = float | tuple[float, ...]
@@ -36,8 +38,8 @@ Gain = float | tuple[float, ...]
 MAX_FREQUENCY_PER_SAMPLE = 0.2
 #: The largest frequency of a stiffness's *coupled* modes, √λ_max(M(q)⁻¹K) on the path, a
 #: default gain may give, in rad per control sample: the per-joint cap above reads the
-#: diagonal of M at home, and the coupled modes of a light wrist or of a folded arm run up
-#: to ~6× faster (:func:`max_mode_frequency`).
+#: diagonal of M at home, and the coupled modes of a light wrist or of a folded arm run
+#: faster (:func:`max_mode_frequency`).
 MAX_MODE_ANGLE_PER_SAMPLE = 0.8
 #: The largest damping per control sample δ = λ_max(M(q)⁻¹ D) dt of a velocity feedback D
 #: a default or tuned gain may give on the path: held over dt, the feedback scales the
@@ -64,6 +66,17 @@ def check_gain(value: Gain, name: str) -> Gain:
             f"got {arr.tolist()}"
         )
     return float(arr) if arr.ndim == 0 else tuple(float(x) for x in arr)
+
+
+@dataclass(frozen=True)
+class DiagonalGains:
+    """The base of the classical baselines' gains dataclasses: every field is a diagonal
+    :data:`Gain`, checked by :func:`check_gain` at construction and stored as a float or a
+    tuple of floats."""
+
+    def __post_init__(self) -> None:
+        for field in dataclasses.fields(self):
+            object.__setattr__(self, field.name, check_gain(getattr(self, field.name), field.name))
 
 
 def gain_vector(value: Gain, n: int, name: str) -> FloatArray:
@@ -132,6 +145,30 @@ def cap_coupled_bandwidth(
         MAX_DAMPING_PER_SAMPLE / (dt_s * damping_gain),
     )
     return float(min(omega_rad_s, limit))
+
+
+def home_inertia_bandwidth(
+    ctx: ControlContext,
+    omega_rad_s: float,
+    stiffness_per_ratio: float,
+    damping_per_ratio: float,
+    damping_offset: float = 0.0,
+) -> tuple[FloatArray, float]:
+    """(m, ω'): the home-pose joint inertias m = diag M(q_home) (kg·m², (n,)) of the
+    context's model and ω (rad/s) capped for the context's control period dt: first at α / dt
+    (:func:`cap_bandwidth`), then (:func:`cap_coupled_bandwidth`) for a gain family scaled
+    by m and applied without M(q), whose stiffness gain is a ρ and damping gain b₀ + b ρ
+    (a = ``stiffness_per_ratio``, b = ``damping_per_ratio``, b₀ = ``damping_offset``), with
+    ρ = :func:`coupling_ratio` of m on the context's path."""
+    inertia = home_inertia_kgm2(ctx.model, ctx.profile)
+    ratio = coupling_ratio(ctx.model, ctx.path, inertia)
+    omega = cap_coupled_bandwidth(
+        cap_bandwidth(omega_rad_s, ctx.dt_s),
+        ctx.dt_s,
+        stiffness_per_ratio * ratio,
+        damping_offset + damping_per_ratio * ratio,
+    )
+    return inertia, omega
 
 
 def cap_bandwidth(omega_rad_s: float, dt_s: float) -> float:

@@ -19,11 +19,11 @@ by dt per step — the env's own s_ref, so on the env that trained it, run throu
 :class:`~agents.policy.ControllerPolicy`, it acts as ``model.predict(obs,
 deterministic=True)`` does (to float32 rounding; ``tests/test_network_base.py``).
 
-Why: the residual wrapper (:mod:`agents.residual`) adds a learned correction to any
-controller; with this adapter its base can be a frozen imitation (``train.imitation``), so
-RL refines a pure policy without touching its weights — residual policy learning over a
+Why: the residual wrapper (:mod:`agents.residual_wrapper`) adds a learned correction to any
+controller; with this adapter its base can be a frozen imitation (``train.rl.imitation``),
+so RL refines a pure policy without touching its weights — residual policy learning over a
 learned initial policy (Silver et al., 2018; Ankile et al., "From imitation to refinement",
-2024), where fine-tuning the imitation itself carried every seed off the path (docs/rl.md).
+2024), instead of fine-tuning the imitation itself (``docs/rl.md``).
 Imports torch and SB3 only in :func:`load_network_controller`.
 """
 
@@ -41,7 +41,7 @@ from agents.base import FloatArray
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.paths import ReferencePath
 
-#: The files of a pure model folder (``train.train``'s run folder or a ``models/`` copy).
+#: The files of a pure model folder (``train.rl.run``'s run folder or a ``models/`` copy).
 MODEL_FILE = "model.zip"
 VECNORMALIZE_FILE = "vecnormalize.pkl"
 

@@ -36,10 +36,10 @@ defaults set D = c K dt, see below).
 
 Opt-in, not in the paper: ``PassivityGains.sync_rate`` > 0 adds a phase
 re-synchronisation of σ (see :meth:`PassivityController.law`); it acts only while the
-speed ratio v/√M_r(s) is below ``sync_ratio`` (the iiwa: 0.5, at low speed; the Panda: 2,
-also at nominal speed) and leaves the law above it unchanged; on the reference its term is
-exactly 0 whatever ``sync_ratio``. With ``sync_rate`` = 0 (the dataclass default) the law
-is exactly the paper's.
+speed ratio v/√M_r(s) is below ``sync_ratio`` (below 1: at low speed only; above 1: also at
+nominal speed; each robot's profile sets it) and leaves the law above it unchanged; on the
+reference its term is exactly 0 whatever ``sync_ratio``. With ``sync_rate`` = 0 (the
+dataclass default) the law is exactly the paper's.
 
 Default gains (:func:`default_gains`) are set by rates and an inertia floor, the same on
 every robot, made absolute with the robot's home-pose joint inertias, the mean M_r of the
@@ -53,9 +53,10 @@ period dt:
 then capped for the rate from the path's extremes (:func:`cap_for_rate`): K and D scaled
 together where the fastest coupled mode of M(q)⁻¹K on the path would turn more than 0.8 rad
 per sample, R lowered where (R + q_r'ᵀDq_r')/M_r(s) dt would exceed 1.6 on the slowest
-stretch. The rates are the robot profile's ``controller_gains["passivity"]`` (two-link and
-iiwa: ω = 20 rad/s, ω_s = 20 rad/s, ρ = 10 1/s, λ = 2 1/s, m_floor = 0.1 kg·m², c = 1; the
-iiwa adds γ = 0.5, r̄ = 0.5; α = 0.2 rad per sample, :func:`agents.gains.cap_stiffness`).
+stretch. The rates are :data:`DEFAULT_RATES` updated by the robot profile's
+``controller_gains["passivity"]`` (ω, ω_s in rad/s; ρ, λ in 1/s; m_floor in kg·m²; c; γ in
+1/s and r̄ for the re-synchronisation); α = :data:`agents.gains.MAX_FREQUENCY_PER_SAMPLE`
+rad per sample (:func:`agents.gains.cap_stiffness`).
 The study that chose them is ``docs/passivity_gain_study.md``; the discretization, its
 rate limit (:meth:`PassivityController.max_period_s`) and the caps: ``docs/control_rates.md``.
 """
@@ -101,10 +102,10 @@ DEFAULT_RATES: dict[str, Any] = {
     "saturation_aware": True,
     "zoh_damping": 1.0,
 }
-#: The rates one gain scale multiplies (``python -m train.fronts``): the joint and the
+#: The rates one gain scale multiplies (``train.studies.fronts``): the joint and the
 #: phase spring bandwidths (the damping rates ρ, λ stay).
 BANDWIDTHS = ("omega", "omega_s")
-#: What ``python -m train.tune`` searches: rate → (low, high, log scale); the rest (the
+#: What the tuner (``train.studies.tune``) searches: rate → (low, high, log scale); the rest (the
 #: inertia floor, the re-synchronisation, the remedy) stays the robot's.
 TUNABLE = {
     "omega": (3.0, 100.0, True),
@@ -129,6 +130,10 @@ HOLDS = ("midpoint", "sample")
 #: periods), fast beside a payload's or a model error's change.
 HOLD_FILTER_S = 0.1
 _STARTS = ("nearest", "reference")
+#: The law's scalars :meth:`PassivityController.diagnostics` reports after s, ṡ, σ
+#: (fields of :class:`LawOutput`).
+DIAGNOSTICS = ("s_tilde", "s_tilde_dot", "sigma_dot", "energy", "h_plus_w", "h_r", "phi", "psi",
+               "pump_power", "dissipation", "sync_power", "path_error", "r0_scale")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -178,32 +183,32 @@ class PassivityGains:
     def __post_init__(self) -> None:
         k = np.atleast_1d(np.asarray(self.K, dtype=np.float64))
         if k.ndim != 1 or not np.all(np.isfinite(k)) or np.any(k <= 0):
-            raise ValueError(
+            raise InvalidConfigError(
                 f"K must be a positive scalar or positive per-joint values, got {self.K!r}"
             )
         d = np.atleast_1d(np.asarray(self.D, dtype=np.float64))
         if d.ndim != 1 or not np.all(np.isfinite(d)) or np.any(d < 0):
-            raise ValueError(
+            raise InvalidConfigError(
                 f"D must be a scalar or per-joint values, each finite and >= 0, got {self.D!r}"
             )
         for name in ("kappa", "R"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number, got {v!r}")
+                raise InvalidConfigError(f"{name} must be a positive number, got {v!r}")
         if not (np.isfinite(self.k_pump) and self.k_pump >= 0):
-            raise ValueError(f"k_pump must be >= 0, got {self.k_pump!r}")
+            raise InvalidConfigError(f"k_pump must be >= 0, got {self.k_pump!r}")
         if self.pump not in _PUMPS:
-            raise ValueError(f"pump must be one of {_PUMPS}, got {self.pump!r}")
+            raise InvalidConfigError(f"pump must be one of {_PUMPS}, got {self.pump!r}")
         if not (np.isfinite(self.speed_eps) and self.speed_eps > 0):
-            raise ValueError(f"speed_eps must be positive, got {self.speed_eps!r}")
+            raise InvalidConfigError(f"speed_eps must be positive, got {self.speed_eps!r}")
         if not (np.isfinite(self.sync_rate) and self.sync_rate >= 0):
-            raise ValueError(f"sync_rate must be >= 0, got {self.sync_rate!r}")
+            raise InvalidConfigError(f"sync_rate must be >= 0, got {self.sync_rate!r}")
         if not (np.isfinite(self.sync_ratio) and self.sync_ratio > 0):
-            raise ValueError(f"sync_ratio must be positive, got {self.sync_ratio!r}")
+            raise InvalidConfigError(f"sync_ratio must be positive, got {self.sync_ratio!r}")
         if self.torque_limits_nm is not None:
             lim = np.asarray(self.torque_limits_nm, dtype=np.float64)
             if lim.ndim != 1 or lim.size == 0 or not np.all(np.isfinite(lim)) or np.any(lim <= 0):
-                raise ValueError(
+                raise InvalidConfigError(
                     f"torque_limits_nm must be None or positive per-joint values, "
                     f"got {self.torque_limits_nm!r}"
                 )
@@ -273,7 +278,7 @@ def _diagonal(value: float | tuple[float, ...], n: int, name: str) -> FloatArray
     if k.shape == (1,):
         return np.full(n, k[0])
     if k.shape != (n,):
-        raise ValueError(f"{name} has {k.shape[0]} entries, the robot has {n} joints")
+        raise InvalidConfigError(f"{name} has {k.shape[0]} entries, the robot has {n} joints")
     return k.copy()
 
 
@@ -336,7 +341,8 @@ class PassivityController:
             env's time-indexed phase s_ref.
         sd0: ṡ₀ at reset; None (default) sets ṡ₀ = σ̇(q₀, q̇₀, s₀), so s̃̇₀ = 0: 0 from
             rest, 1 on the path at nominal speed. σ₀ = s₀ always.
-        integrator, hold: the discretization (below).
+        integrator: how ``step`` integrates (s, ṡ, σ): :data:`INTEGRATORS` (below).
+        hold: which torque ``step`` holds over the period: :data:`HOLDS` (below).
         dt_s: the control period (s) to check now (:meth:`check_rate`); ``step`` checks
             every new period it is given.
 
@@ -358,12 +364,12 @@ class PassivityController:
           \\quad \\sigma \\leftarrow \\sigma + dt\\,\\dot\\sigma
 
       — backward Euler of s̈ linearised in (s, ṡ) at the step's start, with q and σ moving
-      at q̇ and σ̇ over the step. First order, like the explicit scheme it replaces; stable
-      for every dt where that part is stiff: the explicit scheme needs
-      a dt² + 2c dt < 4, which fails at the slow stretches of a path (small M_r(s)) at
-      250 Hz (``docs/control_rates.md``). On the reference Δṡ = 0 exactly (s̈ = 0 and b = a).
-    * ``"symplectic"``: the earlier scheme, symplectic Euler — ṡ ← ṡ + dt·s̈,
-      s ← s + dt·ṡ(new), σ ← σ + dt·σ̇ (kept to show what the implicit one fixes).
+      at q̇ and σ̇ over the step. First order; stable for every dt where that part is stiff,
+      where an explicit step needs a dt² + 2c dt < 4, which fails on a path's slow
+      stretches (small M_r(s)) at ordinary control rates (``docs/control_rates.md``). On the
+      reference Δṡ = 0 exactly (s̈ = 0 and b = a).
+    * ``"symplectic"``: symplectic Euler — ṡ ← ṡ + dt·s̈, s ← s + dt·ṡ(new),
+      σ ← σ + dt·σ̇ (the explicit scheme the implicit one is compared with).
 
     The torque held over the period (``hold``):
 
@@ -373,15 +379,14 @@ class PassivityController:
       period's midpoint, the velocity there predicted with the model and the held torque
       itself (linearly implicit). A zero-order hold turns the law's velocity feedback into
       an explicit Euler step: the work-free τ_r⁰ = G(q̇) q̇ (G skew) is a gyroscopic torque
-      that turns the arm's velocity at up to ~240 rad/s on a path's slow stretches, and an
-      explicit step grows such a rotation by √(1 + (ω dt)²) per step; the midpoint keeps
-      it (``docs/control_rates.md``). δ = O(dt), and 0 at rest (q̇ = 0). The prediction
+      that turns the arm's velocity fast on a path's slow stretches, and an explicit step
+      grows such a rotation at rate ω by √(1 + (ω dt)²) per step; the midpoint keeps it
+      (``docs/control_rates.md``). δ = O(dt), and 0 at rest (q̇ = 0). The prediction
       subtracts b̂, the model's recent acceleration error — what it predicted for the last
       period less what the arm did, (q̇_k − q̇_{k−1})/dt, low-passed with time constant
       ``hold_filter_s`` (0.1 s; 0: none) — so a payload or a model error the nominal model
-      does not know does not bias δ (without it the iiwa's path error under the payload
-      preset at 1 kHz rose 1.5×).
-    * ``"sample"``: the law's torque at the sample, held (the earlier scheme).
+      does not know does not bias δ.
+    * ``"sample"``: the law's torque at the sample, held (a plain zero-order hold).
     """
 
     def __init__(
@@ -397,15 +402,15 @@ class PassivityController:
         hold_filter_s: float = HOLD_FILTER_S,
     ) -> None:
         if tables.n != model.n:
-            raise ValueError(f"tables have {tables.n} joints, model has {model.n}")
+            raise InvalidConfigError(f"tables have {tables.n} joints, model has {model.n}")
         if start not in _STARTS:
-            raise ValueError(f"start must be one of {_STARTS}, got {start!r}")
+            raise InvalidConfigError(f"start must be one of {_STARTS}, got {start!r}")
         if integrator not in INTEGRATORS:
-            raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+            raise InvalidConfigError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
         if hold not in HOLDS:
-            raise ValueError(f"hold must be one of {HOLDS}, got {hold!r}")
+            raise InvalidConfigError(f"hold must be one of {HOLDS}, got {hold!r}")
         if not (math.isfinite(hold_filter_s) and hold_filter_s >= 0.0):
-            raise ValueError(f"hold_filter_s must be >= 0, got {hold_filter_s!r}")
+            raise InvalidConfigError(f"hold_filter_s must be >= 0, got {hold_filter_s!r}")
         self.integrator, self.hold, self.hold_filter_s = integrator, hold, float(hold_filter_s)
         # The midpoint hold's memory: (has a previous step, its dt, its q̇ (n), the model's
         # acceleration under its torque (n), the acceleration error estimate b̂ (n)).
@@ -421,7 +426,7 @@ class PassivityController:
         self._state = np.zeros(3)  # (s, ṡ, σ), integrated in place by the compiled law
         g = self.gains
         if g.torque_limits_nm is not None and len(g.torque_limits_nm) != self.n:
-            raise ValueError(
+            raise InvalidConfigError(
                 f"torque_limits_nm has {len(g.torque_limits_nm)} entries, the robot has {self.n}"
             )
         box = g.torque_limits_nm or (0.0,) * self.n
@@ -453,18 +458,17 @@ class PassivityController:
           springs on the path (:attr:`mode_frequency_rad_s`), c = min_j D_j / (K_j dt) the
           damper's share. A spring mode held over dt with the damper D = cK dt grows per
           step by :func:`~agents.passivity_sampling.spring_growth`, < 1 iff c > ½ and
-          c (ω dt)² < 2 (ω dt < √2 at c = 1; measured on random paths: the first failures at
-          ω dt = 1.43); without a damper (the paper's law) an isolated mode grows at every
-          period and random paths first failed at ω dt = 1.0. The limit keeps a factor √2
-          inside either.
+          c (ω dt)² < 2 (ω dt < √2 at c = 1); without a damper (the paper's law) an isolated
+          mode grows at every period. The limit keeps a factor √2 inside either
+          (``docs/control_rates.md``).
         * phase loop: c_phase dt ≤ 2 (:data:`~agents.passivity_sampling.PHASE_DAMPING_LIMIT`),
           c_phase = max_s (R + q_r'ᵀD q_r')/M_r(s) (:attr:`phase_rate_1_s`): the virtual
           system and the arm's motion along the path, damped against each other, keep ρ ≤ 1
-          up to c dt ≈ 2.5-3.2 (:func:`~agents.passivity_sampling.phase_growth`).
+          beyond c dt = 2 (:func:`~agents.passivity_sampling.phase_growth`).
 
-        The phase spring κ needs no limit (σ integrates the arm's speed; measured stable at
-        250 Hz with κ raised 128×), nor does the velocity turning of τ_r⁰ (held at the
-        midpoint). Why each, with figures: ``docs/control_rates.md``."""
+        The phase spring κ needs no limit (σ integrates the arm's speed), nor does the
+        velocity turning of τ_r⁰ (held at the midpoint). Why each, with figures:
+        ``docs/control_rates.md``."""
         d = float(np.min(self.d_diag / self.k_diag))  # D_j / K_j (s); c = d / dt
         return max_period_s(self.mode_frequency_rad_s, d, self.phase_rate_1_s)
 
@@ -536,11 +540,11 @@ class PassivityController:
 
         Phase re-synchronisation (``gains.sync_rate`` γ > 0; not in the paper):
         the paper's σ integrates the speed ratio v/√M_r(s), which counts *any* motion, so
-        the initial snap onto the path from an off-path rest start can leave σ a few
-        tenths of a second ahead of the arm's actual place on the path. At low speed that
-        phase defect makes the μ channel brake the arm (κ s̃ and W_r'(σ) at the wrong
-        phase), the spring φ passes the brake on to s, and the pair stalls at ṡ ≈ 0.02
-        (the trap of ``docs/passivity_gain_study.md``). With γ > 0,
+        the initial snap onto the path from an off-path rest start can leave σ ahead of the
+        arm's actual place on the path. At low speed that phase defect makes the μ channel
+        brake the arm (κ s̃ and W_r'(σ) at the wrong phase), the spring φ passes the brake
+        on to s, and the pair can stall at ṡ ≪ 1 (the trap of
+        ``docs/passivity_gain_study.md``). With γ > 0,
 
             σ̇ = v/√M_r(s) + w γ Δ,   Δ = (q − q_r(σ))ᵀ M(q) q_r'(σ) / (q_r'(σ)ᵀ M(q) q_r'(σ)),
 
@@ -549,11 +553,11 @@ class PassivityController:
         ``gains.sync_ratio``: w = 1 at rest, w = 0 at and above the speed ratio r̄. So σ
         relaxes toward the arm's phase at rate γ while the arm is slow, and the law is
         the paper's exactly whenever v/√M_r(s) ≥ r̄. On the reference Δ = 0 (q = q_r(σ)),
-        so the term vanishes there for any r̄ and Lemma 5.1 holds. r̄ > 1 (the Panda's 2)
-        lets it act at nominal speed too: there the paper's σ can hold a steady phase
-        defect (s̃ ≈ −2 ms on the Panda) that the phase spring maps into a transverse
-        path error of several mrad decaying over ~60 s
-        (``docs/passivity_gain_study.md``). With u = w γ Δ the storage function's balance becomes
+        so the term vanishes there for any r̄ and Lemma 5.1 holds. r̄ > 1 lets it act at
+        nominal speed too: there the paper's σ can hold a steady phase defect s̃ that the
+        phase spring maps into a slowly decaying transverse path error
+        (``docs/passivity_gain_study.md``). With u = w γ Δ the storage function's balance
+        becomes
         Ė = −R s̃̇² + pump power + q̇ᵀτ_d + (W_r'(σ) − κ s̃ − R s̃̇) u, the last term
         ``sync_power`` (derivation: σ̇ = σ̇₀ + u enters Ẇ_r(σ) and ψ̇, while the μ channel
         delivers −μ√M_r σ̇₀; tested on the exact closed loop): Theorem 4.1's
@@ -565,9 +569,7 @@ class PassivityController:
         + f. τ_r⁰ = (v²/M_r) τ_r − (q̇ᵀτ_r/M_r) τ_q̇ grows like σ̇², and once it exceeds
         τ_max the actuators' per-joint clip turns this work-free torque into one that does
         work, q̇ᵀclip(τ) ≠ q̇ᵀτ. After a fast push that work raises σ̇, hence τ_r⁰, hence
-        the work — the blow-up that an adversarial push search finds (σ̇ 1 → 6, commanded
-        torque ~200 τ_max, a joint past 50 rad/s within 75 ms). With τ_max given the law
-        sends
+        the work: a blow-up (``docs/worst_case.md``). With τ_max given the law sends
 
             τ = τ_rest + α τ_r⁰,  α = max{a ∈ [0, 1] : |τ_rest,j + a τ_r⁰,j| ≤ B_j ∀ j},
             B_j = max(τ_max,j, |τ_rest,j|)
@@ -788,21 +790,7 @@ class PassivityController:
         d = {"s": st.s, "sd": st.sd, "sigma": st.sigma}
         out = self.last
         if out is not None:
-            d.update(
-                s_tilde=out.s_tilde,
-                s_tilde_dot=out.s_tilde_dot,
-                sigma_dot=out.sigma_dot,
-                energy=out.energy,
-                h_plus_w=out.h_plus_w,
-                h_r=out.h_r,
-                phi=out.phi,
-                psi=out.psi,
-                pump_power=out.pump_power,
-                dissipation=out.dissipation,
-                sync_power=out.sync_power,
-                path_error=out.path_error,
-                r0_scale=out.r0_scale,
-            )
+            d.update({name: getattr(out, name) for name in DIAGNOSTICS})
         return d
 
     def residual_features(self, max_speed_rad_s: float) -> FeatureBlock:

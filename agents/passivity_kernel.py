@@ -3,7 +3,7 @@
 
 :func:`law_step` evaluates the law at (q, q̇) with the controller's state (s, ṡ, σ), writes
 the torque and every quantity of ``LawOutput`` into ``out`` (:data:`OUT` then τ_sync, τ_r⁰
-and f), and integrates the state in place (symplectic Euler). The reference tables are
+and f), and integrates the state in place (the controller's integrator). The reference tables are
 interpolated here too (:func:`table_point`, the twin of ``PassivityTables.__call__``).
 ``tests/test_kernels.py`` checks every output against the numpy law to 1e-12.
 """

@@ -13,10 +13,9 @@ frozen at s; its spectral radius ρ is the factor by which a perturbation grows 
    (φ's springs along the path), a_κ = κ/M_r (ψ), c = (R + q_r'ᵀD q_r')/M_r (the dampers),
    all growing like 1/M_r(s) on a slow stretch. The relative motion of s and x is damped
    at 2c; explicit on both sides (symplectic Euler for s, the torque held from the sample
-   for x) its step flips sign and grows once c dt > 1 (:data:`PHASE_DAMPING_LIMIT`): the
-   tuned two-link gains at 250 Hz give ρ = 2.5 on a slow stretch (2.05 in the full frozen
-   closed loop). The default scheme is implicit in a and c on the virtual side and holds
-   R's feedback at the midpoint on the arm's side: ρ ≤ 1 while c dt ≤ 2 and a_K dt² ≤ 1.
+   for x) its step flips sign and grows once c dt > 1. The default scheme is implicit in a
+   and c on the virtual side and holds R's feedback at the midpoint on the arm's side:
+   ρ ≤ 1 while c dt ≤ 2 (:data:`PHASE_DAMPING_LIMIT`) and a_K dt² ≤ 1.
 2. **Velocity turning** (the arm, through τ_r⁰ and the μ channel): the velocity feedback
    of the law on the reference acts in span{u, w}, u = q_r', w = M⁻¹τ_r, as
 
@@ -29,14 +28,12 @@ frozen at s; its spectral radius ρ is the factor by which a perturbation grows 
    whose eigenvalues are −(R/M_r + kM_r)/2 ± iω_v, ω_v² ≈ 2(ΓM_r − W_r'²)/M_r² (Cauchy–
    Schwarz keeps it ≥ 0): the work-free τ_r⁰ turns the velocity like a gyroscopic force.
    Held from the sample, the step is explicit Euler, ρ = max|1 + λ dt| > 1 once
-   ω_v² dt > R/M_r + kM_r (the Panda: ω_v ≈ 240 rad/s, ρ = 1.25 at 250 Hz); held at the
-   midpoint, ρ = max|(1 + λdt/2)/(1 − λdt/2)| ≤ 1.
+   ω_v² dt > R/M_r + kM_r; held at the midpoint, ρ = max|(1 + λdt/2)/(1 − λdt/2)| ≤ 1.
 3. **Spring modes** (the arm, φ): a mode of frequency ω of M(q)⁻¹K under a zero-order hold
    on a continuous arm, with the damper D = cK dt: per step (x, v dt) ↦ the matrix of
    :func:`spring_growth`, det = 1 − cθ² + θ²/2 with θ = ω dt. Without a damper (c = 0, the
    paper's law) ρ > 1 at every dt — the hold feeds the spring ½K dt of negative damping,
-   and nothing in the paper's law damps a mode across the path — which on the xArm6's and
-   the iiwa's wrists at 500 Hz grows into a limit cycle 65-180× the 1-kHz error; with
+   and nothing in the paper's law damps a mode across the path; with
    c > ½, ρ < 1 iff c θ² < 2 (θ < √2 at c = 1): :func:`max_period_s`, the controller's
    stated rate limit, keeps θ ≤ :func:`spring_angle_limit` (c) (1 at c = 1, 1/√2 at c = 0).
 """
@@ -44,22 +41,37 @@ frozen at s; its spectral radius ρ is the factor by which a perturbation grows 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from agents.base import FloatArray
+from agents.passivity_tables import PassivityTables
+from ptrack_gym.robots.model import RobotModel
 
-if TYPE_CHECKING:  # agents.passivity imports this module for its rate limit
-    from agents.passivity import PassivityGains
-    from agents.passivity_tables import PassivityTables
-    from ptrack_gym.robots.model import RobotModel
+
+class PassivityGains(Protocol):
+    """What the sampled loops read of :class:`agents.passivity.PassivityGains` (which
+    imports this module for its rate limit: a structural type keeps the imports one way)."""
+
+    kappa: float
+    R: float
+    k_pump: float
+
+    def stiffness(self, n: int) -> FloatArray:
+        """K as n diagonal entries (N·m/rad)."""
+        ...
+
+    def damping(self, n: int) -> FloatArray:
+        """D as n diagonal entries (N·m·s/rad)."""
+        ...
+
 
 #: The grid rows (of the tables' 2048) the loops are evaluated on.
 ROWS = 128
-#: The largest c dt (c the phase loop's damping rate, loop 1) the rate limit admits: the
-#: phase loop of the default scheme has ρ ≤ 1 up to c dt ≈ 3.2 for a_K dt² → 0 and 2.5-3
-#: for a_K dt² ≤ 1 (what the spring limit allows); the earlier scheme flipped at c dt = 1.
+#: The largest c dt (c the phase loop's damping rate, loop 1) the rate limit admits: inside
+#: the range where the default scheme's phase loop keeps ρ ≤ 1 for a_K dt² ≤ 1 (what the
+#: spring limit allows; :func:`phase_growth`, ``docs/control_rates.md``).
 PHASE_DAMPING_LIMIT = 2.0
 
 
@@ -180,9 +192,7 @@ def spring_angle_limit(c: float) -> float:
     with damper share c = D/(K dt): 1/√c for c ≥ 1 — a factor √2 inside θ = √(2/c), where
     :func:`spring_growth` reaches 1 — and, below c = 1, from 1 (c = 1) down to 1/√2 (c = 0)
     linearly. With c ≤ ½ an isolated mode grows at every θ (by about (½ − c)θ²/2 per step)
-    and only the law's dissipation through the phase holds it: with c = 0 (the paper's law)
-    random paths on the iiwa and the xArm6 at 250 Hz first went unstable at θ = 1.0, none
-    up to 0.7 (``docs/control_rates.md``)."""
+    and only the law's dissipation through the phase holds it (``docs/control_rates.md``)."""
     if c >= 1.0:
         return 1.0 / math.sqrt(c)
     return (1.0 + (math.sqrt(2.0) - 1.0) * max(c, 0.0)) / math.sqrt(2.0)

@@ -24,38 +24,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.base import ControlContext, FeatureBlock, FloatArray, state_arrays
-from agents.gains import (
-    Gain,
-    cap_bandwidth,
-    cap_coupled_bandwidth,
-    check_gain,
-    coupling_ratio,
-    gain_vector,
-    rates,
-    rounded,
-)
-from agents.reference_clock import (
-    ReferenceClock,
-    ReferenceErrors,
-    error_diagnostics,
-    time_indexed_features,
-)
+from agents.base import ControlContext, FloatArray
+from agents.gains import DiagonalGains, Gain, gain_vector, home_inertia_bandwidth, rates, rounded
+from agents.reference_clock import ReferenceErrors
+from agents.time_indexed import TimeIndexedController
 from ptrack_gym.paths import ReferencePath
-from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
+from ptrack_gym.robots.model import RobotModel
 
+#: The gain rates (:class:`agents.registry.RateSource`): ω (rad/s) and ζ, ω the bandwidth.
 NAME = "pd_gravity"
-#: Generic default rates: ω (rad/s), ζ.
 DEFAULT_RATES = {"omega": 20.0, "zeta": 1.0}
-#: What ``python -m train.tune`` searches: rate → (low, high, log scale).
-#: The rates one gain scale multiplies (``python -m train.fronts``): the bandwidth.
 BANDWIDTHS = ("omega",)
 TUNABLE = {"omega": (3.0, 100.0, True), "zeta": (0.5, 2.0, False)}
 
 
 @dataclass(frozen=True)
-class PDGravityGains:
-    """Gains of :class:`PDGravityController`.
+class PDGravityGains(DiagonalGains):
+    """Gains of :class:`PDGravityController`, diagonal (:class:`~agents.gains.DiagonalGains`).
 
     Attributes:
         kp_nm_rad: K_p (N·m/rad).
@@ -64,10 +49,6 @@ class PDGravityGains:
 
     kp_nm_rad: Gain
     kd_nms_rad: Gain
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "kp_nm_rad", check_gain(self.kp_nm_rad, "kp_nm_rad"))
-        object.__setattr__(self, "kd_nms_rad", check_gain(self.kd_nms_rad, "kd_nms_rad"))
 
     @classmethod
     def from_inertia(
@@ -85,11 +66,8 @@ def gains_from_rates(ctx: ControlContext, given: Mapping[str, float] | None) -> 
     """Absolute gains from rates — ``DEFAULT_RATES``, updated by the robot's profile rates,
     updated by ``given`` — at the context's control rate (module docstring)."""
     r = rates(DEFAULT_RATES, given, NAME, ctx.profile.controller_gains.get(NAME))
-    inertia = home_inertia_kgm2(ctx.model, ctx.profile)
-    ratio = coupling_ratio(ctx.model, ctx.path, inertia)
-    omega = cap_coupled_bandwidth(
-        cap_bandwidth(r["omega"], ctx.dt_s), ctx.dt_s, ratio, 2.0 * r["zeta"] * ratio
-    )
+    # stiffness ω² M⁻¹m, damping 2ζω M⁻¹m (per ω², ω)
+    inertia, omega = home_inertia_bandwidth(ctx, r["omega"], 1.0, 2.0 * r["zeta"])
     return PDGravityGains.from_inertia(inertia, omega, r["zeta"])
 
 
@@ -98,65 +76,25 @@ def default_gains(ctx: ControlContext) -> PDGravityGains:
     return gains_from_rates(ctx, None)
 
 
-class PDGravityController:
-    """PD + gravity compensation on the time-indexed reference q_r(s), s = s₀ + t.
+class PDGravityController(TimeIndexedController):
+    """PD + gravity compensation (module docstring) on the time-indexed reference q_r(s),
+    s = s₀ + t, with :class:`PDGravityGains`; of the model only g(q) is used. Arguments,
+    clock and errors: :class:`~agents.time_indexed.TimeIndexedController`."""
 
-    The clock is set to the env's reference phase by :meth:`reset` and advanced by ``dt``
-    in :meth:`step`.
-
-    Args:
-        model: the controller's nominal dynamics model (only g(q) is used).
-        path: the reference path q_r(s), s in seconds.
-        gains: K_p (N·m/rad) and K_d (N·m·s/rad), diagonal.
-
-    Raises:
-        InvalidConfigError: (a ``ValueError``) bad gains, or a model/path mismatch.
-    """
+    gains_type = PDGravityGains
+    rates_to_gains = staticmethod(gains_from_rates)
+    gains: PDGravityGains
 
     def __init__(self, model: RobotModel, path: ReferencePath, gains: PDGravityGains) -> None:
-        if not isinstance(gains, PDGravityGains):
-            raise TypeError(f"gains must be PDGravityGains, got {type(gains).__name__}")
-        self.clock = ReferenceClock(model, path)
-        self.model = model
-        self.path = path
-        self.gains = gains
-        self.n = model.n
+        super().__init__(model, path, gains)
         self.kp = gain_vector(gains.kp_nm_rad, self.n, "kp_nm_rad")  # (n,) N·m/rad
         self.kd = gain_vector(gains.kd_nms_rad, self.n, "kd_nms_rad")  # (n,) N·m·s/rad
-        self._last: tuple[float, ReferenceErrors] | None = None  # (s after, errors)
-        self._s0 = 0.0
 
-    def reset(self, q: FloatArray, qd: FloatArray, s_ref: float) -> None:
-        """Start the clock at s = ``s_ref`` (s)."""
-        self.clock.reset(s_ref)
-        self._last, self._s0 = None, float(s_ref)
-
-    def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
-        """τ = K_p e + K_d ė + g(q) (N·m), shape (n,); then s ← s + dt."""
-        q, qd = state_arrays(q, qd)
-        err = self.clock.errors(q, qd, dt)
-        tau = self.kp * err.e + self.kd * err.ed + self.model.gravity(q)
-        self._last = (self.clock.advance(dt), err)
-        return tau
-
-    def diagnostics(self) -> dict[str, float]:
-        """``s``: the clock after the last step (s), equal to the env's ``s_ref`` then;
-        ``tracking_error`` |e| (rad) and ``velocity_error`` |ė| (rad/s) of the state
-        passed to the last step (against q_r(s − dt))."""
-        return {"s": self._s0} if self._last is None else error_diagnostics(*self._last)
-
-    def residual_features(self, max_speed_rad_s: float) -> FeatureBlock:
-        """e, ė against the clock (see :func:`agents.reference_clock.time_indexed_features`)."""
-        return time_indexed_features(self.clock, self.n, max_speed_rad_s)
+    def torque(self, q: FloatArray, qd: FloatArray, err: ReferenceErrors) -> FloatArray:
+        """τ = K_p e + K_d ė + g(q) (N·m), shape (n,)."""
+        return self.kp * err.e + self.kd * err.ed + self.model.gravity(q)
 
 
-def build(
-    ctx: ControlContext, gains: PDGravityGains | Mapping[str, float] | None = None
-) -> PDGravityController:
-    """The controller for a context: its default gains, the given gains, or gains from the
-    given rates (a mapping, e.g. tuned ones)."""
-    if gains is None:
-        gains = default_gains(ctx)
-    elif isinstance(gains, Mapping):
-        gains = gains_from_rates(ctx, gains)
-    return PDGravityController(ctx.model, ctx.path, gains)
+#: The controller for a context: default gains, the given gains, or gains from given rates
+#: (:meth:`~agents.time_indexed.TimeIndexedController.build`).
+build = PDGravityController.build

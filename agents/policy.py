@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from agents.base import Controller, FloatArray
-from ptrack_gym.errors import ControllerDivergedError
+from ptrack_gym.errors import ControllerDivergedError, InvalidConfigError
 from ptrack_gym.kernels import kernel
 
 
@@ -82,13 +82,15 @@ class ControllerPolicy:
         self, env: Any, controller: Controller, state_source: str = "env", record: bool = False
     ) -> None:
         if state_source not in ("env", "observation"):
-            raise ValueError(f"state_source must be 'env' or 'observation', got {state_source!r}")
+            raise InvalidConfigError(
+                f"state_source must be 'env' or 'observation', got {state_source!r}"
+            )
         self.env = env.unwrapped
         self.controller = controller
         self.state_source = state_source
         self.n = self.env.n
         if controller.n != self.n:
-            raise ValueError(f"controller has {controller.n} joints, env has {self.n}")
+            raise InvalidConfigError(f"controller has {controller.n} joints, env has {self.n}")
         self.torque_limits_nm = np.asarray(self.env.torque_limits_nm, dtype=np.float64)
         self.last_tau_nm = np.zeros(self.n)
         self.record = record
@@ -161,7 +163,7 @@ class ControllerPolicy:
         obs = np.asarray(observation)
         batched = obs.ndim == 2
         if batched and obs.shape[0] != 1:
-            raise ValueError("ControllerPolicy drives one env: batch size must be 1")
+            raise InvalidConfigError("ControllerPolicy drives one env: batch size must be 1")
         if episode_start is not None and bool(np.asarray(episode_start).any()):
             self.reset_controller(obs.reshape(-1))
         action = self.action(obs.reshape(-1))

@@ -2,8 +2,14 @@
 
 Computed torque, PD + gravity and Slotine–Li all track q_r(s) with s = s₀ + t: a clock
 set to the env's reference phase at ``reset`` and advanced by ``dt`` after each step.
-:class:`ReferenceClock` is that clock and the errors against it, composed into each
-controller so the bookkeeping (and its checks) exists once.
+:class:`ReferenceClock` is that clock and the errors against it,
+
+.. math::
+
+    e = q_r(s) - q, \\qquad \\dot e = q_r'(s) - \\dot q,
+
+held by their shared body (:class:`agents.time_indexed.TimeIndexedController`) so the
+bookkeeping (and its checks) exists once.
 """
 
 from __future__ import annotations
@@ -14,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from agents.base import FeatureBlock, FloatArray
-from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.errors import InvalidConfigError, ResetNeededError
 from ptrack_gym.kernels.path import path_tables, reference_errors
 from ptrack_gym.paths import ReferencePath
 from ptrack_gym.robots.model import RobotModel
@@ -54,7 +60,7 @@ class ReferenceClock:
         """The reference at the current s and the errors of (q, q̇); checks that ``reset``
         came first and that ``dt`` (s), the step about to be taken, is positive."""
         if self.s is None:
-            raise RuntimeError("call reset() before step()")
+            raise ResetNeededError("call reset() before step()")
         if not (math.isfinite(dt) and dt > 0.0):
             raise InvalidConfigError(f"dt must be a positive number of seconds, got {dt!r}")
         if self._tables is None:

@@ -1,9 +1,11 @@
-"""The registry of controller builders: one entry per controller name.
+"""The registry of controllers: one :class:`ControllerEntry` per controller name.
 
 Adding a controller is one file (a class with the :class:`~agents.base.Controller`
-interface and a ``build(ctx, gains=None)`` function that fills in default gains) and one
-entry in :data:`CONTROLLERS` and one in :data:`RATE_MODULES` (the module stating its
-default, tunable and bandwidth rates).
+interface, a ``build(ctx, gains=None)`` function that fills in default gains, and the
+module constants of :class:`RateSource`) and one entry in :data:`ENTRIES`. Every other
+table here (:data:`CONTROLLERS`, :data:`CONTROLLER_NAMES`, :data:`RATE_MODULES`,
+:data:`TUNABLE`, :data:`PRIOR_BASES`) is a read-only view of that one.
+
 :func:`make_controller` is the one constructor the residual wrapper, the evaluation and
 training scripts and the benchmarks use. Every controller is built from the env's
 *nominal* model (``env.unwrapped.model``), never from the simulated body.
@@ -12,9 +14,10 @@ training scripts and the benchmarks use. Every controller is built from the env'
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from types import ModuleType
-from typing import Any
+from types import MappingProxyType
+from typing import Any, Protocol
 
 import yaml
 
@@ -23,43 +26,111 @@ from agents.base import ControlContext, Controller
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots.profile import RobotProfile
 
-#: name → builder(ctx, gains=None) of every controller.
-CONTROLLERS: dict[str, Callable[..., Controller]] = {
-    "passivity": passivity.build,
-    "passivity_paper": passivity.build_paper,
-    "computed_torque": computed_torque.build,
-    "pd_gravity": pd_gravity.build,
-    "slotine_li": slotine_li.build,
-}
-
-#: The controller names :func:`make_controller` accepts.
-CONTROLLER_NAMES: tuple[str, ...] = tuple(CONTROLLERS)
-
-#: name → the module that states the controller's rates (``NAME``, the profile key of its
-#: rates; ``DEFAULT_RATES``; ``TUNABLE``; ``BANDWIDTHS``).
-RATE_MODULES: dict[str, ModuleType] = {
-    "passivity": passivity,
-    "passivity_paper": passivity,
-    "computed_torque": computed_torque,
-    "pd_gravity": pd_gravity,
-    "slotine_li": slotine_li,
-}
-
-#: name → the rates ``python -m train.tune`` searches, rate → (low, high, log scale).
-TUNABLE: dict[str, dict[str, tuple[float, float, bool]]] = {
-    name: module.TUNABLE for name, module in RATE_MODULES.items()
-}
+#: A controller builder: (context, gains) → controller; gains None (the robot's defaults), a
+#: mapping of rates, or the controller's gains dataclass.
+Builder = Callable[[ControlContext, Any], Controller]
 
 
-#: Where tuned gains live: ``<robot>-<controller>.yml`` (written by ``python -m train.tune``).
+class RateSource(Protocol):
+    """What states a controller's gain rates (its bandwidths and ratios, made absolute by its
+    ``gains_from_rates``): the controller's module, through these constants."""
+
+    #: The key of its rates in a robot profile's ``controller_gains``.
+    NAME: str
+    #: Generic default rates, rate → value (ω in rad/s, dimensionless ratios, …).
+    DEFAULT_RATES: Mapping[str, Any]
+    #: What the tuner (``train.studies.tune``) searches: rate → (low, high, log scale).
+    TUNABLE: Mapping[str, tuple[float, float, bool]]
+    #: The rates one gain scale multiplies (``train.studies.fronts``): its bandwidths.
+    BANDWIDTHS: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class ControllerEntry:
+    """One controller of the registry.
+
+    Attributes:
+        name: the name :func:`make_controller`, the configs and the residual ids use.
+        build: its builder, ``build(ctx, gains=None)``.
+        rates: the module stating its gain rates (:class:`RateSource`); two entries may
+            share one (the paper's passivity law and the default one).
+        prior_base: whether a residual on it may have a control prior: its residual
+            feature block holds the reference error q_r(s) − q per joint
+            (``agents.residual_features.PRIOR_ERROR_FEATURES``).
+        tunable: whether the tuner searches its rates (:data:`TUNABLE`).
+    """
+
+    name: str
+    build: Builder
+    rates: RateSource
+    prior_base: bool = True
+    tunable: bool = True
+
+
+def _table(*entries: ControllerEntry) -> Mapping[str, ControllerEntry]:
+    """name → entry, read-only; a repeated name raises."""
+    table = {entry.name: entry for entry in entries}
+    if len(table) != len(entries):
+        raise InvalidConfigError("two registry entries share a name")
+    return MappingProxyType(table)
+
+
+#: Every controller, name → entry: the one table.
+ENTRIES: Mapping[str, ControllerEntry] = _table(
+    ControllerEntry("passivity", passivity.build, passivity),
+    ControllerEntry("passivity_paper", passivity.build_paper, passivity),
+    ControllerEntry("computed_torque", computed_torque.build, computed_torque),
+    ControllerEntry("pd_gravity", pd_gravity.build, pd_gravity),
+    ControllerEntry("slotine_li", slotine_li.build, slotine_li),
+)
+
+#: The controller names :func:`make_controller` accepts, in the table's order.
+CONTROLLER_NAMES: tuple[str, ...] = tuple(ENTRIES)
+#: name → builder (a view of :data:`ENTRIES`).
+CONTROLLERS: Mapping[str, Builder] = MappingProxyType({e.name: e.build for e in ENTRIES.values()})
+#: name → the module stating its rates (a view of :data:`ENTRIES`).
+RATE_MODULES: Mapping[str, RateSource] = MappingProxyType(
+    {e.name: e.rates for e in ENTRIES.values()}
+)
+#: name → the rates the tuner searches, rate → (low, high, log scale), of the tunable entries.
+TUNABLE: Mapping[str, Mapping[str, tuple[float, float, bool]]] = MappingProxyType(
+    {e.name: e.rates.TUNABLE for e in ENTRIES.values() if e.tunable}
+)
+#: The controllers a residual with a control prior may have as its base.
+PRIOR_BASES: tuple[str, ...] = tuple(e.name for e in ENTRIES.values() if e.prior_base)
+
+#: Where tuned gains live: ``<robot>-<controller>.yml`` (written by the tuner).
 TUNED_DIR = Path(__file__).resolve().parent / "tuned"
 
 #: The named gain choices of every entry point.
 GAIN_CHOICES: tuple[str, ...] = ("default", "tuned")
 
 
+def entry(name: str) -> ControllerEntry:
+    """The registry entry of controller ``name``.
+
+    Raises:
+        InvalidConfigError: (a ``ValueError``) an unknown name, listing the known ones.
+    """
+    try:
+        return ENTRIES[name]
+    except KeyError:
+        raise InvalidConfigError(
+            f"unknown controller {name!r}; known: {list(CONTROLLER_NAMES)}"
+        ) from None
+
+
+def check_gain_choice(gains: object, what: str = "gains") -> str:
+    """``gains`` if it is one of :data:`GAIN_CHOICES`, else :class:`InvalidConfigError`
+    naming ``what``."""
+    if not isinstance(gains, str) or gains not in GAIN_CHOICES:
+        raise InvalidConfigError(f"{what} must be one of {GAIN_CHOICES}, got {gains!r}")
+    return gains
+
+
 def tuned_rates(robot: str, controller: str) -> dict[str, Any]:
-    """The tuned rates of ``controller`` on ``robot`` (``agents/tuned/<robot>-<controller>.yml``).
+    """The tuned rates of ``controller`` on ``robot`` (``agents/tuned/<robot>-<controller>.yml``
+    in :data:`TUNED_DIR`), rate → value.
 
     Raises:
         InvalidConfigError: no tuned gains for that pair (the message lists those there are).
@@ -71,49 +142,53 @@ def tuned_rates(robot: str, controller: str) -> dict[str, Any]:
     return dict(yaml.safe_load(path.read_text())["rates"])
 
 
-def effective_rates(profile: RobotProfile, name: str, gains: Any = "default") -> dict[str, Any]:
+def effective_rates(
+    profile: RobotProfile, name: str, gains: str | Mapping[str, Any] | None = "default"
+) -> dict[str, Any]:
     """Every rate ``name`` uses on the robot of ``profile`` with ``gains`` ("default",
     "tuned" or a mapping of rates): its generic defaults, updated by the profile's, updated
-    by the tuned or given ones — what :func:`make_controller` makes absolute."""
-    module = RATE_MODULES[name]
-    rates = {**module.DEFAULT_RATES, **profile.controller_gains.get(module.NAME, {})}
+    by the tuned or given ones — what :func:`make_controller` makes absolute.
+
+    Raises:
+        InvalidConfigError: an unknown controller or gain choice, or no tuned gains.
+    """
+    source = entry(name).rates
+    rates = {**source.DEFAULT_RATES, **profile.controller_gains.get(source.NAME, {})}
     if isinstance(gains, str):
-        if gains not in GAIN_CHOICES:
-            raise InvalidConfigError(f"gains must be one of {GAIN_CHOICES}, got {gains!r}")
-        if gains == "tuned":
+        if check_gain_choice(gains) == "tuned":
             rates.update(tuned_rates(profile.name, name))
     elif isinstance(gains, Mapping):
         rates.update(gains)
     return rates
 
 
-def scaled_rates(profile: RobotProfile, name: str, gains: Any, scale: float) -> dict[str, Any]:
-    """:func:`effective_rates` with the controller's bandwidths (``BANDWIDTHS``) × ``scale``:
-    one knob from soft to stiff, the other rates (damping ratios, …) kept."""
+def scaled_rates(
+    profile: RobotProfile, name: str, gains: str | Mapping[str, Any], scale: float
+) -> dict[str, Any]:
+    """:func:`effective_rates` with the controller's bandwidths (``BANDWIDTHS``, rad/s) ×
+    ``scale``: one knob from soft to stiff, the other rates (damping ratios, …) kept.
+
+    Raises:
+        InvalidConfigError: a scale that is not a finite number > 0, or as
+            :func:`effective_rates`.
+    """
     if not (isinstance(scale, (int, float)) and scale > 0 and scale < float("inf")):
         raise InvalidConfigError(f"a gain scale must be a positive number, got {scale!r}")
     rates = effective_rates(profile, name, gains)
-    return {**rates, **{k: rates[k] * scale for k in RATE_MODULES[name].BANDWIDTHS}}
+    return {**rates, **{k: rates[k] * scale for k in entry(name).rates.BANDWIDTHS}}
 
 
 def make_controller(name: str, env: Any, gains: Any = None) -> Controller:
     """The controller ``name`` (one of :data:`CONTROLLER_NAMES`) for ``env`` (any wrapper
     of a ``TrackingEnv``) with ``gains``: None or ``"default"`` — the robot's default gains
-    at the env's control rate; ``"tuned"`` — the rates found by ``python -m train.tune``
+    at the env's control rate; ``"tuned"`` — the rates found by the tuner
     (:func:`tuned_rates`); a mapping of rates; or the controller's gains dataclass.
 
     Raises:
         InvalidConfigError: (a ``ValueError``) an unknown name or gain choice.
     """
-    try:
-        builder = CONTROLLERS[name]
-    except KeyError:
-        raise InvalidConfigError(
-            f"unknown controller {name!r}; known: {list(CONTROLLER_NAMES)}"
-        ) from None
+    build = entry(name).build
     if isinstance(gains, str):
-        if gains not in GAIN_CHOICES:
-            raise InvalidConfigError(f"gains must be one of {GAIN_CHOICES}, got {gains!r}")
         robot = env.unwrapped.robot_profile.name
-        gains = None if gains == "default" else tuned_rates(robot, name)
-    return builder(ControlContext.from_env(env), gains)
+        gains = None if check_gain_choice(gains) == "default" else tuned_rates(robot, name)
+    return build(ControlContext.from_env(env), gains)

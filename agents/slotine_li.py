@@ -48,38 +48,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.base import ControlContext, FeatureBlock, FloatArray, state_arrays
-from agents.gains import (
-    Gain,
-    cap_bandwidth,
-    cap_coupled_bandwidth,
-    check_gain,
-    coupling_ratio,
-    gain_vector,
-    rates,
-    rounded,
-)
-from agents.reference_clock import (
-    ReferenceClock,
-    ReferenceErrors,
-    error_diagnostics,
-    time_indexed_features,
-)
+from agents.base import ControlContext, FeatureBlock, FloatArray
+from agents.gains import DiagonalGains, Gain, gain_vector, home_inertia_bandwidth, rates, rounded
+from agents.reference_clock import ReferenceErrors, time_indexed_features
+from agents.time_indexed import TimeIndexedController
 from ptrack_gym.paths import ReferencePath
-from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
+from ptrack_gym.robots.model import RobotModel
 
+#: The gain rates (:class:`agents.registry.RateSource`): ω (rad/s) and c = ``kd_ratio``, ω
+#: the bandwidth.
 NAME = "slotine_li"
-#: Generic default rates: ω (rad/s).
 DEFAULT_RATES = {"omega": 20.0, "kd_ratio": 1.0}
-#: What ``python -m train.tune`` searches: rate → (low, high, log scale).
-#: The rates one gain scale multiplies (``python -m train.fronts``): the bandwidth.
 BANDWIDTHS = ("omega",)
 TUNABLE = {"omega": (3.0, 100.0, True), "kd_ratio": (0.25, 4.0, True)}
 
 
 @dataclass(frozen=True)
-class SlotineLiGains:
-    """Gains of :class:`SlotineLiController`.
+class SlotineLiGains(DiagonalGains):
+    """Gains of :class:`SlotineLiController`, diagonal (:class:`~agents.gains.DiagonalGains`).
 
     Attributes:
         lambda_1_s: Λ (1/s), the sliding-surface slope: r = ė + Λ e.
@@ -88,10 +74,6 @@ class SlotineLiGains:
 
     lambda_1_s: Gain
     kd_nms_rad: Gain
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "lambda_1_s", check_gain(self.lambda_1_s, "lambda_1_s"))
-        object.__setattr__(self, "kd_nms_rad", check_gain(self.kd_nms_rad, "kd_nms_rad"))
 
     @classmethod
     def from_inertia(
@@ -107,12 +89,8 @@ def gains_from_rates(ctx: ControlContext, given: Mapping[str, float] | None) -> 
     """Absolute gains from rates — ``DEFAULT_RATES``, updated by the robot's profile rates,
     updated by ``given`` — at the context's control rate (module docstring)."""
     r = rates(DEFAULT_RATES, given, NAME, ctx.profile.controller_gains.get(NAME))
-    inertia = home_inertia_kgm2(ctx.model, ctx.profile)
-    ratio = coupling_ratio(ctx.model, ctx.path, inertia)
     c = r["kd_ratio"]  # damping Λ + c ω M⁻¹m, stiffness c ω² M⁻¹m (per ω, ω²)
-    omega = cap_coupled_bandwidth(
-        cap_bandwidth(r["omega"], ctx.dt_s), ctx.dt_s, c * ratio, 1.0 + c * ratio
-    )
+    inertia, omega = home_inertia_bandwidth(ctx, r["omega"], c, c, damping_offset=1.0)
     return SlotineLiGains.from_inertia(inertia, omega, c)
 
 
@@ -140,36 +118,25 @@ def christoffel_product(
     )
 
 
-class SlotineLiController:
+class SlotineLiController(TimeIndexedController):
     """Slotine–Li tracking of the time-indexed reference q_r(s), s = s₀ + t, on the
-    nominal model (no parameter adaptation).
+    nominal model, without parameter adaptation, with :class:`SlotineLiGains` (arguments,
+    clock and errors: :class:`~agents.time_indexed.TimeIndexedController`).
 
-    The clock is set to the env's reference phase by :meth:`reset` and advanced by ``dt``
-    in :meth:`step`. Each step costs three inverse-dynamics calls and one mass matrix
-    (the latter only for the Lyapunov value in :meth:`diagnostics`).
-
-    Args:
-        model: the controller's nominal dynamics model (never the simulator).
-        path: the reference path q_r(s), s in seconds.
-        gains: Λ (1/s) and K_D (N·m·s/rad), diagonal.
-
-    Raises:
-        InvalidConfigError: (a ``ValueError``) bad gains, or a model/path mismatch.
+    Each step costs three inverse-dynamics calls; :meth:`diagnostics` one mass matrix more
+    (for the Lyapunov value).
     """
 
+    gains_type = SlotineLiGains
+    rates_to_gains = staticmethod(gains_from_rates)
+    gains: SlotineLiGains
+
     def __init__(self, model: RobotModel, path: ReferencePath, gains: SlotineLiGains) -> None:
-        if not isinstance(gains, SlotineLiGains):
-            raise TypeError(f"gains must be SlotineLiGains, got {type(gains).__name__}")
-        self.clock = ReferenceClock(model, path)
-        self.model = model
-        self.path = path
-        self.gains = gains
-        self.n = model.n
+        super().__init__(model, path, gains)
         self.lam = gain_vector(gains.lambda_1_s, self.n, "lambda_1_s")  # (n,) 1/s
         self.kd = gain_vector(gains.kd_nms_rad, self.n, "kd_nms_rad")  # (n,) N·m·s/rad
         self._zeros = np.zeros(self.n)
-        self._last: tuple[float, ReferenceErrors, FloatArray] | None = None  # (s, errors, q)
-        self._s0 = 0.0
+        self._q_last = np.zeros(self.n)  # the q passed to the last step (rad)
 
     def lyapunov(self, q: FloatArray, qd: FloatArray, s: float) -> float:
         """V = ½ rᵀ M(q) r + eᵀ Λ K_D e (J) at state (q, q̇) against q_r(s)."""
@@ -178,26 +145,23 @@ class SlotineLiController:
         r = qd_r - qd + self.lam * e
         return float(0.5 * r @ self.model.mass_matrix(q) @ r + e @ (self.lam * self.kd * e))
 
-    def reset(self, q: FloatArray, qd: FloatArray, s_ref: float) -> None:
-        """Start the clock at s = ``s_ref`` (s)."""
-        self.clock.reset(s_ref)
-        self._last, self._s0 = None, float(s_ref)
-
     def step(self, q: FloatArray, qd: FloatArray, dt: float) -> FloatArray:
-        """τ = M q̈_ref + C(q, q̇) q̇_ref + g + K_D r (N·m), shape (n,); then s ← s + dt."""
-        q, qd = state_arrays(q, qd)
-        err = self.clock.errors(q, qd, dt)
+        """τ (N·m) of :meth:`torque`; then s ← s + dt (s), keeping q for :meth:`diagnostics`."""
+        tau = super().step(q, qd, dt)
+        self._q_last = np.array(q, dtype=np.float64)
+        return tau
+
+    def torque(self, q: FloatArray, qd: FloatArray, err: ReferenceErrors) -> FloatArray:
+        """τ = M q̈_ref + C(q, q̇) q̇_ref + g + K_D r (N·m), shape (n,)."""
         e, ed = err.e, err.ed
         qd_ref = err.qd_r + self.lam * e  # (n,) rad/s
         qdd_ref = err.qdd_r + self.lam * ed  # (n,) rad/s²
         r = ed + self.lam * e  # (n,) rad/s, = qd_ref − qd
-        tau = (
+        return (
             self.model.inverse_dynamics(q, self._zeros, qdd_ref)  # M q̈_ref + g
             + christoffel_product(self.model, q, qd, qd_ref)  # C(q, q̇) q̇_ref
             + self.kd * r
         )
-        self._last = (self.clock.advance(dt), err, np.array(q, dtype=np.float64))
-        return tau
 
     def diagnostics(self) -> dict[str, float]:
         """``s``: the clock after the last step (s), equal to the env's ``s_ref`` then;
@@ -206,28 +170,21 @@ class SlotineLiController:
         ``lyapunov_j`` V (J), computed when asked for."""
         if self._last is None:
             return {"s": self._s0}
-        s, err, q = self._last
+        err = self._last[1]
         r = err.ed + self.lam * err.e  # (n,) rad/s
-        mass = self.model.mass_matrix(q)  # (n, n)
+        mass = self.model.mass_matrix(self._q_last)  # (n, n)
         return {
-            **error_diagnostics(s, err),
+            **super().diagnostics(),
             "sliding_error": float(np.linalg.norm(r)),
             "lyapunov_j": float(0.5 * r @ mass @ r + err.e @ (self.lam * self.kd * err.e)),
         }
 
     def residual_features(self, max_speed_rad_s: float) -> FeatureBlock:
         """e, ė and r = ė + Λ e against the clock
-        (see :func:`agents.reference_clock.time_indexed_features`)."""
+        (:func:`agents.reference_clock.time_indexed_features`)."""
         return time_indexed_features(self.clock, self.n, max_speed_rad_s, lam=self.lam)
 
 
-def build(
-    ctx: ControlContext, gains: SlotineLiGains | Mapping[str, float] | None = None
-) -> SlotineLiController:
-    """The controller for a context: its default gains, the given gains, or gains from the
-    given rates (a mapping, e.g. tuned ones)."""
-    if gains is None:
-        gains = default_gains(ctx)
-    elif isinstance(gains, Mapping):
-        gains = gains_from_rates(ctx, gains)
-    return SlotineLiController(ctx.model, ctx.path, gains)
+#: The controller for a context: default gains, the given gains, or gains from given rates
+#: (:meth:`~agents.time_indexed.TimeIndexedController.build`).
+build = SlotineLiController.build

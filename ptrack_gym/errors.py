@@ -37,3 +37,11 @@ class SimulationClosedError(PtrackError, RuntimeError):
 class ControllerDivergedError(PtrackError, FloatingPointError):
     """A controller returned a non-finite torque: it has diverged (the evaluation ends the
     episode as unstable; the residual env terminates it with the unstable penalty)."""
+
+
+class InvalidArgumentError(PtrackError, TypeError):
+    """An argument of the wrong type (a controller's gains of another controller's class)."""
+
+
+class ResetNeededError(PtrackError, RuntimeError):
+    """A stateful object (a controller, an env) was stepped before its first ``reset``."""

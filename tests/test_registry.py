@@ -1,0 +1,86 @@
+"""The controller registry: one entry per controller, and every other table a read-only
+view of that one."""
+
+from __future__ import annotations
+
+import pytest
+
+from agents import registry
+from agents.base import Controller
+from agents.registry import (
+    CONTROLLER_NAMES,
+    CONTROLLERS,
+    ENTRIES,
+    PRIOR_BASES,
+    RATE_MODULES,
+    TUNABLE,
+    ControllerEntry,
+    effective_rates,
+    entry,
+    make_controller,
+    scaled_rates,
+)
+from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.robots import robot_profile
+
+TWO_LINK = "ptrack_gym/TwoLinkTrack-v0"
+
+
+def test_every_view_is_derived_from_the_one_table() -> None:
+    entries = list(ENTRIES.values())
+    assert all(isinstance(e, ControllerEntry) for e in entries)
+    assert CONTROLLER_NAMES == tuple(e.name for e in entries) == tuple(ENTRIES)
+    assert dict(CONTROLLERS) == {e.name: e.build for e in entries}
+    assert dict(RATE_MODULES) == {e.name: e.rates for e in entries}
+    assert dict(TUNABLE) == {e.name: e.rates.TUNABLE for e in entries if e.tunable}
+    assert PRIOR_BASES == tuple(e.name for e in entries if e.prior_base)
+
+
+def test_views_are_read_only() -> None:
+    for view in (ENTRIES, CONTROLLERS, RATE_MODULES, TUNABLE):
+        with pytest.raises(TypeError):
+            view["lqr"] = None  # type: ignore[index]
+
+
+@pytest.mark.parametrize("name", CONTROLLER_NAMES)
+def test_each_rate_source_states_consistent_rates(name: str) -> None:
+    """Bandwidths and tunable rates are rates the controller has; ranges are ordered."""
+    source = entry(name).rates
+    assert isinstance(source.NAME, str)
+    assert set(source.BANDWIDTHS) <= set(source.DEFAULT_RATES)
+    assert set(source.TUNABLE) <= set(source.DEFAULT_RATES)
+    for low, high, log in source.TUNABLE.values():
+        assert 0 < low < high and isinstance(log, bool)
+
+
+def test_unknown_names_raise_the_package_error_listing_the_known_ones() -> None:
+    profile = robot_profile("two_link")
+    for call in (
+        lambda: entry("lqr"),
+        lambda: effective_rates(profile, "lqr"),
+        lambda: scaled_rates(profile, "lqr", "default", 2.0),
+    ):
+        with pytest.raises(InvalidConfigError, match="unknown controller 'lqr'; known"):
+            call()
+    with pytest.raises(InvalidConfigError, match="gains must be one of"):
+        effective_rates(profile, "pd_gravity", "stiff")
+
+
+def test_scaled_rates_multiply_only_the_bandwidths() -> None:
+    profile = robot_profile("two_link")
+    base = effective_rates(profile, "passivity")
+    scaled = scaled_rates(profile, "passivity", "default", 2.0)
+    for rate, value in base.items():
+        factor = 2.0 if rate in entry("passivity").rates.BANDWIDTHS else 1.0
+        assert scaled[rate] == (value * factor if factor != 1.0 else value)
+
+
+def test_an_entry_added_to_the_table_is_a_controller_everywhere(make_env, monkeypatch) -> None:
+    """Adding a controller is one entry: make_controller finds it by name."""
+    pd = entry("pd_gravity")
+    table = {**ENTRIES, "pd_twin": ControllerEntry("pd_twin", pd.build, pd.rates)}
+    monkeypatch.setattr(registry, "ENTRIES", table)
+    env = make_env(TWO_LINK)
+    twin = make_controller("pd_twin", env)
+    assert isinstance(twin, Controller)
+    assert twin.gains == make_controller("pd_gravity", env).gains
