@@ -16,7 +16,7 @@ five runs of one worker count each).
 Every sweep is a fresh ``ptrack evaluate`` process, as a user runs it (interpreter
 start and imports included, nothing warm from an earlier sweep). Counts above 1 are timed
 once per ``--start-methods`` entry (default: ``fork`` — what ``start_method: auto`` picks
-for that command on Linux, Python >= 3.11: :func:`train.evaluation.sweep.start_method` — and
+for that command on Linux, Python >= 3.11: :func:`train.common.runs.start_method` — and
 ``spawn``), so the two ways of starting the workers are compared in the same run; a second
 table gives what one worker costs before its first episode under each (in a fresh process
 that has imported what the CLI imports and run no episode, ``--repeats`` times).
@@ -40,7 +40,7 @@ from pathlib import Path
 
 from train.common.threads import ONE_THREAD_VARS
 from train.evaluation.config import load_config
-from train.evaluation.sweep import _finish
+from train.evaluation.sweep import finish
 
 
 def worker_counts(cores: int) -> list[int]:
@@ -82,7 +82,7 @@ def sweep_seconds(
     ]
     overrides = run if config is not None else [*small, *run]
     cfg = load_config(config, overrides)
-    argv = [sys.executable, "-m", "train.evaluation.config", "--no-progress"]
+    argv = [sys.executable, "-m", "train.evaluate", "--no-progress"]
     if config is not None:
         argv += ["--config", str(config)]
     for item in overrides:
@@ -91,7 +91,7 @@ def sweep_seconds(
     subprocess.run(argv, check=True, stdout=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
     t0 = time.perf_counter()
-    _finish(cfg, Path(cfg.out), show=False)  # the serial tail again: report, bootstrap
+    finish(cfg, Path(cfg.out), show=False)  # the serial tail again: report, bootstrap
     return wall, time.perf_counter() - t0, len(cfg.tasks())
 
 
@@ -99,11 +99,11 @@ _START_PROBE = """
 import sys, time
 from train.evaluation.episode import run_episode
 from train.evaluation.config import load_config
-from train.evaluation.sweep import _worker_pool
+from train.common.runs import worker_pool
 cfg = load_config(None, ["episode_s=0.1", "plots=false", "seeds=1"])
 task, settings = cfg.tasks()[0], cfg.settings()
 t0 = time.perf_counter()
-pool = _worker_pool(1, sys.argv[1])
+pool = worker_pool(1, sys.argv[1])
 pool.submit(run_episode, task, settings, False).result()
 first = time.perf_counter() - t0
 t0 = time.perf_counter()

@@ -1,11 +1,11 @@
 """The main job's same work, old code against this checkout, side by side (issue 12).
 
-Runs the first release's main job (``train/configs/evaluate/main.yml`` at ``--baseline``, commit
+Runs the first release's main job (``train/configs/main.yml`` at ``--baseline``, commit
 18e8559: 4 controllers at default gains, undisturbed and 3 presets × 3 levels, 5 seeds,
 6-s episodes at 1 kHz, 200 episodes) once with that commit's code, checked out in a
 temporary ``git worktree``, and once with this checkout's (the same config with
 ``passivity_paper``, the first release's law), alternating for ``--rounds`` rounds, each a
-fresh ``ptrack evaluate`` process with ``--workers`` runners. Prints every wall
+fresh ``python -m train.evaluate`` process with ``--workers`` runners. Prints every wall
 time (s), the ratio of the medians, and how far apart the two runs' rows are: the largest
 relative difference of each metric over the paired episodes (the first release's
 ``passivity`` counted against today's ``passivity_paper``)::
@@ -38,7 +38,7 @@ METRICS = ["path_dist_rms", "path_dist_max", "time_err_rms", "tau_rms_frac", "co
 
 def timed_sweep(tree: Path, config: Path, out: Path, workers: int) -> float:
     """Wall time (s) of one sweep run by the code in ``tree``, as a fresh process."""
-    command = [sys.executable, "-m", "train.evaluation.config", "--config", str(config)]
+    command = [sys.executable, "-m", "train.evaluate", "--config", str(config)]
     command += ["--out", str(out), "--workers", str(workers), "--no-progress"]
     start = time.perf_counter()
     subprocess.run(command, cwd=tree, check=True, capture_output=True)

@@ -1,7 +1,7 @@
 """SAC training throughput on the residual env next to the same env without the base
 controller, measured in one run.
 
-Three variants of the env of ``train.rl.run`` (the robot's default control rate, 5-s
+Three variants of the env of ``ptrack train`` (the robot's default control rate, 5-s
 episodes, start on the path, no disturbance): *pure* (no base controller), *residual,
 no features* (the base controller, the inner observation only: the same network input
 as pure, so the difference is the controller's cost) and *residual* (the default: the
@@ -24,7 +24,7 @@ time; it sets ``torch.set_num_threads(1)``.
 ``--learners`` measures instead the learners the RL study chose between, on the pure env
 with the kernel reward (same rounds and medians): SB3 SAC with [256, 256] and [64, 64]
 networks, sb3-contrib's TQC [64, 64] (when installed: the ``zoo`` extra brings it), SB3
-PPO with 8 envs in a DummyVecEnv, and sbx's JAX SAC [64, 64] (``train.rl.run --backend sbx``;
+PPO with 8 envs in a DummyVecEnv, and sbx's JAX SAC [64, 64] (``ptrack train --backend sbx``;
 the optional ``sbx`` extra: a row says so when it is missing).
 """
 
@@ -46,11 +46,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from agents.registry import CONTROLLER_NAMES
 from agents.residual import make_residual_env
-from train.rl.run import TrainConfig, validate
+from train.rl.config import TrainConfig, validate
 
 
 def make(env_id: str, residual: str, features: bool = True) -> tuple[gym.Env, dict]:
-    """The training env of ``train.rl.run`` (residual "none" or a base controller, with or
+    """The training env of ``ptrack train`` (residual "none" or a base controller, with or
     without its features) and the resolved SAC hyperparameters."""
     res = validate(TrainConfig(out="/nonexistent", algo="sac", env_id=env_id, residual=residual))
     env_kwargs = {
@@ -122,7 +122,7 @@ def learner_steps_per_s(label: str, env_id: str, steps: int, warmup: int, seed: 
     net = [256, 256] if "256" in label else [64, 64]
     if label.startswith("sbx"):
         from train.evaluation.policies import (
-            algo_class,  # train.rl.run's --backend sbx (one XLA thread)
+            algo_class,  # ptrack train --backend sbx (one XLA thread)
         )
 
         model = algo_class("sac", "sbx")(

@@ -281,3 +281,22 @@ def test_to_argv_round_trips() -> None:
             assert parse(argv) == cfg, argv
     long = LongSweep(out="o", workers=2, seeds=7)
     assert parse(to_argv(long), LongSweep) == long
+
+
+@dataclass
+class Normalize:
+    """A tri-state switch: on, off, or the hyperparameter file's choice."""
+
+    vec_normalize: bool | None = None
+    """Wrap the envs in VecNormalize; None: the file's choice."""
+
+
+def test_an_optional_bool_is_a_switch_and_null_is_none() -> None:
+    assert parse([], Normalize).vec_normalize is None
+    assert parse(["--vec-normalize"], Normalize).vec_normalize is True
+    assert parse(["--no-vec-normalize"], Normalize).vec_normalize is False
+    assert parse(["--vec-normalize", "--set", "vec_normalize=null"], Normalize).vec_normalize
+    assert parse(["--set", "vec_normalize=null"], Normalize).vec_normalize is None
+    for value in (None, True, False):
+        config = Normalize(value)
+        assert parse(to_argv(config), Normalize) == config

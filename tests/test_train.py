@@ -8,6 +8,8 @@ whole file stays well under a minute on a loaded 2-core machine.
 from __future__ import annotations
 
 import functools
+import re
+import shlex
 
 import pytest
 
@@ -24,9 +26,12 @@ from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.vec_env import VecNormalize
 
 from train.cli import run_command as _run_command
+from train.evaluation.envs import build_env
+from train.evaluation.policies import ALGOS
 from train.rl.actor import zero_init_actor
 from train.rl.config import TrainConfig, TrainConfigError, parse_args, validate
-from train.rl.run import ALGOS, build_env, parse_python_literal, run
+from train.rl.hyperparameters import parse_python_literal
+from train.rl.run import run
 
 main = functools.partial(_run_command, "train")
 
@@ -78,7 +83,8 @@ def argv(out: Path, algo: str, residual: str, steps: int, *extra: str) -> list[s
 )
 def test_short_run_saves_a_reloadable_model(tmp_path: Path, algo: str, residual: str) -> None:
     out = tmp_path / "run"
-    result = run(parse_args(argv(out, algo, residual, 200, "--disturbance", "impulse:0.5")))
+    cfg = parse_args(argv(out, algo, residual, 200, "--disturbance", "impulse:0.5"))
+    result = run(cfg)
     model = result.model
     assert result.num_timesteps >= 200
     for name in ("config.yml", "command.txt", "versions.json", "model.zip", "vecnormalize.pkl"):
@@ -89,7 +95,8 @@ def test_short_run_saves_a_reloadable_model(tmp_path: Path, algo: str, residual:
     assert saved["config"]["residual"] == residual
     assert saved["derived"]["control_hz"] == 250.0
     assert saved["derived"]["max_episode_steps"] == 50
-    assert "train.rl.run" in (out / "command.txt").read_text()
+    command = (out / "command.txt").read_text().splitlines()[-1]
+    assert command.startswith("ptrack train ") and parse_args(shlex.split(command)[2:]) == cfg
 
     reloaded = ALGOS[algo].load(out / "model.zip", device="cpu")
     obs_dim = model.observation_space.shape[0]
@@ -207,11 +214,16 @@ def test_sigterm_is_an_interruption_while_a_run_trains_only() -> None:
     ],
 )
 def test_bad_config_raises_before_anything_is_written(
-    tmp_path: Path, extra: list[str], match: str
+    tmp_path: Path, extra: list[str], match: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "run"
     with pytest.raises(TrainConfigError, match=match):
+        run(parse_args(argv(out, "sac", "passivity", 100, *extra)))
+    assert not out.exists()
+    with pytest.raises(SystemExit) as exc:  # the command line: exit 2, the same message
         main(argv(out, "sac", "passivity", 100, *extra))
+    assert exc.value.code == 2
+    assert re.search(match, capsys.readouterr().err)
     assert not out.exists()
 
 
@@ -488,5 +500,5 @@ def test_resume_compares_a_key_the_run_predates_with_its_default(tmp_path: Path)
     del saved["config"]["decision_every"]
     cfg_file.write_text(yaml.safe_dump(saved))
     with pytest.raises(TrainConfigError, match="decision_every=5 differs from the run's 1"):
-        main(argv(out, "sac", "passivity", 100, "--eval-freq", "0", "--resume",
-                  "--decision-every", "5"))  # fmt: skip
+        run(parse_args(argv(out, "sac", "passivity", 100, "--eval-freq", "0", "--resume",
+                            "--decision-every", "5")))  # fmt: skip

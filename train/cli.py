@@ -218,8 +218,9 @@ def _report(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
     import yaml
 
     for folder in args.folders:
+        kind = results_kind(folder)  # refuses a folder without results first
         saved = yaml.safe_load((folder / "config.yml").read_text())
-        if results_kind(folder) == "rates":
+        if kind == "rates":
             from train.studies.rates import RatesConfig, write_report
 
             cfg = RatesConfig(**{**saved, "out": str(folder)})

@@ -277,8 +277,8 @@ def add_config_arguments(
             "default": argparse.SUPPRESS,
             "help": f"{' '.join(docs.get(f.name, '').split())} ({shown})".replace("%", "%%"),
         }
-        optional, base = _split_optional(hints[f.name])
-        if base is bool and not optional:
+        base = _split_optional(hints[f.name])[1]
+        if base is bool:  # bool | None: the flags say True/False, --set field=null says None
             kwargs["action"] = argparse.BooleanOptionalAction
         else:
             items = _item_types(base)
@@ -375,8 +375,8 @@ def to_argv(
         value, default, tp = getattr(instance, f.name), _default(f), hints[f.name]
         if not full and default is not dataclasses.MISSING and value == default:
             continue
-        flag, (optional, base) = _flag(f.name), _split_optional(tp)
-        if base is bool and not optional and isinstance(value, bool):
+        flag, base = _flag(f.name), _split_optional(tp)[1]
+        if base is bool and isinstance(value, bool):
             argv.append(flag if value else "--no-" + flag[2:])
             continue
         words = _flag_words(f.name, tp, value)

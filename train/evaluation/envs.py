@@ -13,6 +13,7 @@ from typing import Any
 import gymnasium as gym
 
 import ptrack_gym  # noqa: F401  (registers the envs)
+from agents.residual_spec import WRAPPER_DEFAULTS
 from ptrack_gym.envs.config import EnvConfig
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import RobotProfile, profile_for_env_id
@@ -32,22 +33,8 @@ def parse_disturbance(text: str | None) -> Any:
         raise InvalidConfigError(f"disturbance level must be a number: {text!r}") from None
 
 
-#: The residual wrapper's arguments a run config may set (its safeguards, its base's gains,
-#: its control prior and, for a network base, the base policy's folder), with the wrapper's
-#: defaults (``agents.residual.make_residual_env``).
-WRAPPER_DEFAULTS: dict[str, Any] = {
-    "action_penalty": 0.0,
-    "gate_rad": None,
-    "gate_deadband_rad": 0.0,
-    "scale_accel_rad_s2": None,
-    "base_gains": "default",
-    "prior_gain_per_rad": 0.0,
-    "base_model": None,
-}
-
-
 def residual_wrapper_kwargs(config: Mapping[str, Any]) -> dict[str, Any]:
-    """The residual wrapper's arguments (:data:`WRAPPER_DEFAULTS`' keys) of a run
+    """The residual wrapper's arguments (``agents.residual_spec.WRAPPER_DEFAULTS``' keys) of a run
     config — a ``TrainConfig`` as a mapping or a run's saved ``config.yml`` section (keys
     a run predates take the wrapper's default). Training and evaluation both build their
     wrapper from this, so a run is evaluated with the authority and gate it trained with

@@ -70,7 +70,7 @@ class EpisodeSettings:
     failure_distance_rad: float
     recovery_threshold_rad: float
     gains: str | tuple[tuple[str, Any], ...] = "default"
-    """The model-based controllers' gains: "default", "tuned" (``agents/tuned``), or rates
+    """The model-based controllers' gains: "default", "tuned" (``agents/tuned``), or gain rates
     as sorted (name, value) pairs (what ``ptrack tune`` tries)."""
     path: str = "default"
     """The env's reference path family ("default": the path the RL entrants trained on)."""

@@ -27,7 +27,7 @@ import pandas as pd
 from ptrack_gym.errors import PtrackError
 from ptrack_gym.metrics import METRIC_NAMES
 from train.common.statistics import bootstrap_ci, iqm
-from train.evaluation.episode import KEY_COLUMNS
+from train.evaluation.episode import KEY_COLUMNS, label
 
 COLUMNS: tuple[str, ...] = (*KEY_COLUMNS, *METRIC_NAMES, "steps", "wall_s")
 
@@ -203,8 +203,8 @@ def format_table(summary: pd.DataFrame, metric: str, columns: Sequence[str] | No
 
 def headline_table(summary: pd.DataFrame, metric: str) -> str:
     """Markdown: the mean of ``metric`` per condition (rows: "undisturbed", then each
-    disturbance × level) and controller (columns), the lowest of each row in bold — the
-    table ``make run`` ends with."""
+    disturbance × level) and controller (columns, trained entrants by their run folder's
+    name), the lowest of each row in bold — the table ``make run`` ends with."""
     df = summary.copy()
     df["condition"] = [
         "undisturbed" if d == "none" else f"{d} {float(lv):g}"
@@ -214,11 +214,12 @@ def headline_table(summary: pd.DataFrame, metric: str) -> str:
         index="condition", columns="controller", values=f"{metric}_mean", sort=False
     )
     controllers = list(dict.fromkeys(df["controller"]))
+    rows = sorted(table.index, key=lambda c: c != "undisturbed")  # stable: the rest in order
     lines = [
-        "| condition | " + " | ".join(controllers) + " |",
+        "| condition | " + " | ".join(label(c) for c in controllers) + " |",
         "|---|" + "---:|" * len(controllers),
     ]
-    for condition, row in table.iterrows():
+    for condition, row in table.loc[rows].iterrows():
         best = row[controllers].min()
         cells = [
             "" if pd.isna(row[c]) else (f"**{row[c]:.2e}**" if row[c] == best else f"{row[c]:.2e}")

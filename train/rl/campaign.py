@@ -138,9 +138,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ctx = mp.get_context("spawn")
     # SIGTERM (kill, a scheduler) is an interruption like Ctrl-C: leaving the ``with`` block
     # terminates the pool, each worker's run saves where it got to, and the pool joins them
-    # before this process exits. Without it the parent died alone and its spawn workers
-    # trained on, orphaned (measured: two campaigns "killed" this way wrote checkpoints
-    # 25 minutes later).
+    # before this process exits; without it the parent dies alone and its spawned workers
+    # train on, orphaned.
     interrupted = False
     try:
         with sigterm_as_interrupt(), ctx.Pool(max(1, args.workers), maxtasksperchild=1) as pool:

@@ -83,7 +83,7 @@ class TrainConfig:
     """Residual only: the residual as a joint acceleration instead of ``scale_fraction``:
     τ_res = M(q) α a, α in rad/s² (``agents.residual``)."""
     base_gains: str = "default"
-    """Residual only: the base controller's gains, "default" (the robot's default rates at
+    """Residual only: the base controller's gains, "default" (the robot's default gain rates at
     the control rate) or "tuned" (``agents/tuned``, the main job's); evaluation rebuilds
     the run's env with the same."""
     base_model: str | None = None

@@ -70,7 +70,14 @@ from train.rl.checkpoints import (
     save_checkpoint,
     save_final,
 )
-from train.rl.config import DEMO_BC_STREAM, Resolved, TrainConfig, dagger_spec, validate
+from train.rl.config import (
+    DEMO_BC_STREAM,
+    Resolved,
+    TrainConfig,
+    dagger_spec,
+    to_argv,
+    validate,
+)
 from train.rl.hyperparameters import (
     action_noise,
 )
@@ -106,8 +113,8 @@ def imitate(res: Resolved, model: BaseAlgorithm, train_env: VecEnv, run_dir: Pat
     save_demonstrations(demos, run_dir, spec)
     if isinstance(train_env, VecNormalize):
         # The actor was fitted to these statistics (round 0's): frozen from here on, or
-        # the same actor would see other inputs as RL's episodes move them (measured: one
-        # seed's frozen actor went from 0 to 10 of 10 test episodes failed in 10 000 steps).
+        # the same actor would see other inputs as RL's episodes move them
+        # (docs/experiments.md, the pure DAgger policy on the iiwa).
         train_env.training = False
     save_checkpoint(model, train_env, run_dir, replay_buffer=False)
 
@@ -189,7 +196,8 @@ def _yaml_safe(value: Any) -> Any:
 
 
 def write_run_files(res: Resolved, run_dir: Path, argv: Sequence[str] | None) -> None:
-    """config.yml (resolved), command.txt (appended), versions.json."""
+    """config.yml (resolved), command.txt (appended: ``ptrack train`` with ``argv``, or with
+    the arguments that rebuild the config when ``argv`` is None), versions.json."""
     run_dir.mkdir(parents=True, exist_ok=True)
     config = {
         "config": dataclasses.asdict(res.cfg),
@@ -205,7 +213,7 @@ def write_run_files(res: Resolved, run_dir: Path, argv: Sequence[str] | None) ->
         "hyperparams": {**res.algo_kwargs, **res.special},
     }
     (run_dir / "config.yml").write_text(yaml.safe_dump(_yaml_safe(config), sort_keys=False))
-    args = list(sys.argv[1:] if argv is None else argv)
+    args = list(to_argv(res.cfg) if argv is None else argv)  # None: the config's own command
     line = shlex.join(["ptrack", "train", *args])
     with (run_dir / "command.txt").open("a") as fh:
         fh.write(line + "\n")

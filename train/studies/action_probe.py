@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ptrack_gym.errors import InvalidActionError
 from train.evaluation.envs import build_decision_env, residual_wrapper_kwargs
 from train.evaluation.policies import deploy_safeguards, load_sb3_policy, run_config
 
@@ -44,7 +45,9 @@ class ActionUsage:
         """Statistics of ``actions`` (steps × joints, in [-1, 1])."""
         a = np.asarray(actions, dtype=float)
         if a.ndim != 2 or a.shape[0] == 0:
-            raise ValueError(f"actions must be a non-empty (steps, joints) array, got {a.shape}")
+            raise InvalidActionError(
+                f"actions must be a non-empty (steps, joints) array, got {a.shape}"
+            )
         return cls(
             steps=a.shape[0],
             mean_abs=float(np.abs(a).mean()),

@@ -1,6 +1,6 @@
 """Effort-matched comparison: error-vs-effort fronts, ``ptrack fronts``.
 
-For each controller, one knob — a scale ``k`` on its bandwidth rates (``BANDWIDTHS`` of its
+For each controller, one knob — a scale ``k`` on its gain rates (``BANDWIDTHS`` of its
 module: ω for the baselines, ω and ω_s for the passivity law), applied to its ``gains``
 (tuned or default) — is swept over ``scales``; every (controller, k) runs the same paired
 episodes (``seeds`` × each preset at ``level``, "none" undisturbed). Each point is the mean

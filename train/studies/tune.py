@@ -2,8 +2,8 @@
 
 One Optuna study per robot × controller, the same settings for every controller:
 
-* parameters — the controller's rates (``agents.registry.TUNABLE``: a bandwidth and a
-  damping or phase rate each, four rates for the passivity law), made absolute by the
+* parameters — the controller's gain rates (``agents.registry.TUNABLE``: a bandwidth and a
+  damping or phase rate each, four gain rates for the passivity law), made absolute by the
   controller's own ``gains_from_rates`` exactly as its defaults are;
 * sampler — TPE, seeded, ``startup_trials`` random trials first; ``trials`` per study;
 * objective — the geometric mean of the path-distance RMS (rad) over
@@ -23,7 +23,7 @@ One Optuna study per robot × controller, the same settings for every controller
 
 Resumable (``--resume``: the study lives in ``<out>/optuna.journal``), the episodes of a
 trial run in ``workers`` processes, progress is printed per trial. ``--save`` writes the
-best rates with the study's settings to ``agents/tuned/<robot>-<controller>.yml``, which
+best gain rates with the study's settings to ``agents/tuned/<robot>-<controller>.yml``, which
 ``make_controller(..., gains="tuned")`` and every entry point's ``gains: tuned`` read.
 Needs the ``tune`` extra (Optuna).
 """
@@ -159,7 +159,7 @@ def tune(
 ) -> dict[str, dict[str, Any]]:
     """Run (or continue) one study per controller; return {controller: best result}.
 
-    ``save_dir`` (``--save``: :data:`agents.registry.TUNED_DIR`) receives the best rates of
+    ``save_dir`` (``--save``: :data:`agents.registry.TUNED_DIR`) receives the best gain rates of
     each controller as ``<robot>-<controller>.yml``, with the study's settings.
 
     Raises:
@@ -203,7 +203,8 @@ def tune(
                 path = save_dir / f"{robot}-{controller}.yml"
                 path.write_text(
                     f"# Tuned by ptrack tune ({datetime.date.today()}); see "
-                    f"train/tune.py for the objective.\n" + yaml.safe_dump(record, sort_keys=False)
+                    "train/studies/tune.py for the objective.\n"
+                    + yaml.safe_dump(record, sort_keys=False)
                 )
     return results
 
@@ -303,13 +304,13 @@ def _study(
 
 
 def tuned_table(tuned_dir: Path = TUNED_DIR) -> str:
-    """Markdown: every tuned file's rates next to the robot's defaults, with the study's
+    """Markdown: every tuned file's gain rates next to the robot's defaults, with the study's
     validation error, effort (budget) and wall time (``ptrack tune --table``)."""
     from agents.registry import RATE_MODULES, effective_rates
     from ptrack_gym.robots import robot_profile
 
     lines = [
-        "| robot | controller | tuned rates | default rates | validation error (rad) "
+        "| robot | controller | tuned gain rates | default gain rates | validation error (rad) "
         "| effort (budget) | feasible trials | wall (s) |",
         "|---|---|---|---|---:|---|---:|---:|",
     ]

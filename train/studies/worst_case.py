@@ -161,7 +161,7 @@ def evaluate_task(args: tuple[Any, ...]) -> Outcome:
 
 
 def controller_gains(cfg: AdversaryConfig, controller: str) -> str | dict[str, Any]:
-    """The gains argument of ``controller``'s episodes: "default", or the tuned rates
+    """The gains argument of ``controller``'s episodes: "default", or the tuned gain rates
     themselves (recorded in ``worst.yml``, so a replay does not depend on a later tuning)."""
     if cfg.gains == "tuned":
         return tuned_rates(profile_for_env_id(cfg.env_id).name, controller)
