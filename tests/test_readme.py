@@ -82,8 +82,9 @@ def _experiment(command: str) -> list[str]:
     """The ptrack words of ``make experiment CONFIG=... [ARGS=...]``, as ``make -n``
     prints the recipe (the command is the config's folder)."""
     assignments = dict(w.split("=", 1) for w in shlex.split(command)[2:])
+    make = ["make", "-n", "--no-print-directory", "experiment"]
     printed = subprocess.run(
-        ["make", "-n", "--no-print-directory", "experiment", *(f"{k}={v}" for k, v in assignments.items())],
+        [*make, *(f"{k}={v}" for k, v in assignments.items())],
         cwd=ROOT, capture_output=True, text=True, check=True,
     ).stdout.strip().splitlines()[-1]  # fmt: skip
     words = shlex.split(printed)
@@ -116,7 +117,8 @@ def test_every_command_runs_on_tiny_settings(scratch: Path) -> None:
         if "--help" not in words:
             words = _shrunk(words)
         result = _ptrack(words, scratch)
-        assert result.returncode == 0, f"{command}\n{result.stdout[-2000:]}\n{result.stderr[-4000:]}"
+        output = f"{result.stdout[-2000:]}\n{result.stderr[-4000:]}"
+        assert result.returncode == 0, f"{command}\n{output}"
         ran += 1
     assert ran >= 3
 
