@@ -16,7 +16,7 @@ import gymnasium
 
 from ptrack_gym.robots import ROBOTS
 
-__version__ = "0.2.0"
+__version__ = "0.3.1"
 
 #: Default episode length (s) at the default control rate of 1 kHz.
 EPISODE_S = 10.0
@@ -32,5 +32,22 @@ for _profile in ROBOTS.values():
             max_episode_steps=int(EPISODE_S * DEFAULT_CONTROL_HZ),
         )
     ENV_IDS.append(_profile.env_id)
+
+#: The base controllers of the residual-RL ids ``ptrack_gym/<Robot>Track-Residual-<Base>-v0``
+#: (``agents.registry.CONTROLLER_NAMES``: tests/test_zoo.py keeps the two equal). Registered
+#: here with a string entry point, so ``gym.make`` of a residual id works after ``import
+#: ptrack_gym`` alone: ``agents`` is imported only when such an env is built.
+RESIDUAL_BASES = ("passivity", "passivity_paper", "computed_torque", "pd_gravity", "slotine_li")
+for _profile in ROBOTS.values():
+    for _base in RESIDUAL_BASES:
+        _camel = "".join(part.capitalize() for part in _base.split("_"))
+        _id = f"{_profile.env_id.removesuffix('-v0')}-Residual-{_camel}-v0"
+        if _id not in gymnasium.registry:
+            gymnasium.register(
+                id=_id,
+                entry_point="agents.residual_ids:residual_env",
+                kwargs={"robot": _profile.name, "base": _base},
+                max_episode_steps=int(EPISODE_S * DEFAULT_CONTROL_HZ),
+            )
 
 __all__ = ["DEFAULT_CONTROL_HZ", "ENV_IDS", "EPISODE_S", "__version__"]

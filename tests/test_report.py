@@ -229,3 +229,81 @@ def test_worst_case_section_reads_a_search_summary(tmp_path):
     sentence = worst_case_sentence([folder])
     assert "lowest worst case passivity (0.06 rad)" in sentence
     assert "unstable: passivity_paper 0/200 searched, 1/200 random" in sentence
+
+
+def worked(values: dict[tuple[str, str, float], np.ndarray], idle: dict) -> pd.DataFrame:
+    """:func:`frame` with the work ledger: 0.3 J per disturbed episode, except 0 J in the
+    seeds ``idle[(disturbance, level)]`` (0 J throughout "none" and "payload")."""
+    df = frame(values)
+    work = np.where(df["disturbance"].isin(["none", "payload"]), 0.0, 0.3)
+    for (dist, level), seeds in idle.items():
+        work[((df["disturbance"] == dist) & (df["level"] == level) & df["seed"].isin(seeds))] = 0.0
+    return df.assign(disturbance_work_j=work)
+
+
+def test_a_condition_whose_disturbance_did_no_work_is_flagged_and_not_compared(tmp_path):
+    """impulse 1: 3 of 5 episodes did no work (their onset came after the episode's end):
+    the condition keeps its statistics but gets no mark, is out of K and the verdict."""
+    ref = np.linspace(1.0, 2.0, 5)
+    df = worked(
+        {
+            ("ref", "none", 0.0): ref, ("b", "none", 0.0): 2 * ref,
+            ("ref", "impulse", 1.0): ref, ("b", "impulse", 1.0): 2 * ref,
+            ("ref", "periodic", 1.0): ref, ("b", "periodic", 1.0): 2 * ref,
+        },
+        idle={("impulse", 1.0): [0, 2, 4]},
+    )  # fmt: skip
+    text = write_report(df, tmp_path, "path_dist_rms", "ref", [], 200, figures=False).read_text()
+    assert "impulse 1: 3 of 5 episodes saw no disturbance (no work done): not compared" in text
+    assert (
+        "over 2 conditions" in text and "b is farther from it in 2 (undisturbed, periodic 1" in text
+    )
+    rows = [line for line in text.splitlines() if line.startswith("| impulse 1 |")]
+    assert len(rows) == 2 and all(line.endswith("| not compared |") for line in rows)
+    assert "| impulse 1 | b | 5 | 3 |" in text  # its statistics are still shown
+    comparisons = pd.read_csv(tmp_path / "comparisons.csv")
+    assert "impulse" not in set(comparisons["disturbance"])
+    assert (comparisons["comparisons"] == 2).all()  # K: the compared conditions only
+    # Every episode did work: the report is the one a table without the ledger gives.
+    df.loc[df["disturbance"] == "impulse", "disturbance_work_j"] = 0.3
+
+    def report(frame: pd.DataFrame) -> str:
+        return write_report(frame, tmp_path, "path_dist_rms", "ref", [], 200, figures=False
+                            ).read_text()  # fmt: skip
+
+    every = report(df)
+    assert every == report(df.drop(columns="disturbance_work_j"))
+    assert "not compared" not in every and "over 3 conditions" in every
+
+
+def test_a_payload_is_flagged_only_when_its_episode_equals_its_undisturbed_twin():
+    """A payload does no work on the ledger (0 J when it acts): an episode of it saw no
+    disturbance only if every metric equals the same controller's, seed's and episode's
+    run under "none"."""
+    from train.evaluation.results import no_disturbance
+
+    ref = np.linspace(1.0, 2.0, 4)
+    df = worked({("a", "none", 0.0): ref, ("a", "payload", 1.0): ref * [1, 3, 1, 3]}, idle={})
+    assert no_disturbance(df).tolist() == [False] * 4 + [True, False, True, False]
+    impulse = worked({("a", "impulse", 1.0): ref}, idle={("impulse", 1.0): [1]})
+    assert no_disturbance(impulse).tolist() == [False, True, False, False]  # no twin needed
+
+
+def test_the_summary_counts_and_the_headline_marks_episodes_without_a_disturbance():
+    from train.evaluation.results import headline_table, summarize
+
+    ref = np.linspace(1.0, 2.0, 5)
+    df = worked(
+        {("a", "none", 0.0): ref, ("a", "impulse", 1.0): ref, ("a", "periodic", 1.0): ref},
+        idle={("impulse", 1.0): [1, 3]},
+    )
+    summary = summarize(df.assign(time_err_rms=0.0, speed_ratio_err=0.0, recovery_s=np.nan,
+                                  tau_rms_frac=0.0), resamples=50)  # fmt: skip
+    assert summary.set_index("disturbance")["no_disturbance_n"].to_dict() == {
+        "impulse": 2, "none": 0, "periodic": 0,
+    }  # fmt: skip
+    lines = headline_table(summary, "path_dist_rms").splitlines()
+    assert lines[3].startswith("| impulse 1 † |") and lines[4].startswith("| periodic 1 |")
+    assert lines[-1] == (
+        "† impulse 1: 2 of 5 episodes saw no disturbance (no work done): not compared"
+    )

@@ -1,7 +1,8 @@
 """Composable, seeded disturbances and model mismatch for the tracking environments.
 
-* :mod:`~ptrack_gym.disturbances.base` — the :class:`Disturbance` interface (its hooks)
-  and the :class:`DisturbanceContext` a disturbance may read;
+* :mod:`~ptrack_gym.disturbances.base` — the :class:`Disturbance` interface (its hooks),
+  the :class:`DisturbanceContext` a disturbance may read, and :data:`RECOVERY_S`, the time
+  an episode must leave after a disturbance's latest event (shorter episodes are refused);
 * :mod:`~ptrack_gym.disturbances.families` — the families (impulse, step, periodic and
   noise torques, push, payload, mismatch, action and observation noise, delay);
 * :mod:`~ptrack_gym.disturbances.presets` — presets × levels and :func:`build_disturbances`;
@@ -14,9 +15,11 @@ run with the same seed meet exactly the same disturbances.
 
 from ptrack_gym.disturbances.base import (
     DISTURBANCES,
+    RECOVERY_S,
     Disturbance,
     DisturbanceContext,
     MassChange,
+    min_horizon_s,
 )
 from ptrack_gym.disturbances.families import (
     ActionNoise,
@@ -36,6 +39,7 @@ from ptrack_gym.disturbances.presets import (
     DisturbanceSpec,
     build_disturbances,
     from_spec,
+    preset_does_work,
     preset_specs,
 )
 from ptrack_gym.disturbances.runner import DisturbanceRunner
@@ -44,6 +48,7 @@ __all__ = [
     "DISTURBANCES",
     "ENERGY_PRESETS",
     "PRESETS",
+    "RECOVERY_S",
     "ActionNoise",
     "Disturbance",
     "DisturbanceContext",
@@ -61,5 +66,7 @@ __all__ = [
     "StepTorque",
     "build_disturbances",
     "from_spec",
+    "min_horizon_s",
+    "preset_does_work",
     "preset_specs",
 ]

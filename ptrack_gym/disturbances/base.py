@@ -17,13 +17,19 @@ documented points; a disturbance never touches the simulator itself:
 * ``sense(q, q̇)`` — every control step, on the true state: what the observation and the
   controllers see.
 
+Before any of those, at env construction, ``check_horizon(horizon_s)``: a family with
+onsets (an impulse, a push, a step, a payload's pick and drop) refuses an episode too short
+for its latest event to happen *and* be recovered from — the latest onset + its duration +
+:data:`RECOVERY_S` must fit in the horizon (:func:`check_event_fits`). Without it a short
+episode ends before the onset, and a comparison "under impulses" compares undisturbed runs.
+
 A subclass with a ``name`` is registered in :data:`DISTURBANCES` (the spec ``type``), so
 adding a disturbance family is writing one class.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -36,6 +42,19 @@ FloatArray = NDArray[np.float64]
 
 #: Every disturbance family by its spec ``type`` (filled by subclassing :class:`Disturbance`).
 DISTURBANCES: dict[str, type[Disturbance]] = {}
+
+#: A timed event of a disturbance: (field name, onset or (low, high) onset range, duration),
+#: in s (:meth:`Disturbance.timed_events`).
+TimedEvent = tuple[str, float | tuple[float, float], float]
+
+#: The least time (s) an episode must run after a timed disturbance's latest possible event
+#: ends (latest onset + duration): the recovery window. 0.5 s is 10 impulse and 5 push
+#: durations of the presets, and more than most recoveries take (results/main, iiwa, 1 kHz:
+#: median ``recovery_s`` 0.04-0.08 s after an impulse, three quarters under 0.14 s at levels
+#: ≤ 1), so the response is measured, not cut off; every shipped configuration keeps more
+#: (5-s episodes: ≥ 0.9 s after onsets of 1-4 s; 8-s episodes: ≥ 3.9 s). A constant, not a
+#: fraction of the horizon: the minimum episode of a family is then its latest event + 0.5 s.
+RECOVERY_S: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -93,6 +112,18 @@ class Disturbance:
     def validate(self, ctx: DisturbanceContext) -> None:
         """Raise :class:`InvalidConfigError` if this disturbance cannot act on the env of
         ``ctx`` (e.g. a link it names does not exist); called once, at env construction."""
+
+    def timed_events(self) -> tuple[TimedEvent, ...]:
+        """Each event drawn at a time: (its field, its onset or (low, high) onset range,
+        its duration), in s; ``()`` for a family without onsets."""
+        return ()
+
+    def check_horizon(self, horizon_s: float) -> None:
+        """Raise :class:`InvalidConfigError` if an episode of ``horizon_s`` (s) is too short
+        for one of :meth:`timed_events` to happen and be recovered from
+        (:func:`check_event_fits`); called at env construction."""
+        for field_name, onset_s, duration_s in self.timed_events():
+            check_event_fits(self.name, field_name, onset_s, duration_s, horizon_s)
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         """Draw this episode's schedule."""
@@ -182,3 +213,51 @@ def check_non_negative(value: float | tuple[float, float], name: str) -> None:
         for v in values
     ):
         raise InvalidConfigError(f"{name} must be >= 0 (or a (low, high) range), got {value!r}")
+
+
+def latest(value: float | tuple[float, float]) -> float:
+    """The latest time (s) a fixed value or a (low, high) range can draw."""
+    return float(max(value)) if isinstance(value, tuple) else float(value)
+
+
+def check_event_fits(
+    family: str,
+    field_name: str,
+    onset_s: float | tuple[float, float],
+    duration_s: float,
+    horizon_s: float,
+) -> None:
+    """Raise :class:`InvalidConfigError` unless every drawable event fits in the episode:
+
+        max(onset) + duration + RECOVERY_S ≤ horizon   (s; 1e-9 s of rounding allowed)
+
+    with :data:`RECOVERY_S` the recovery window. The message names the family, its onset
+    range, the duration, the recovery window and the horizon, and what to change: a longer
+    episode, or an onset range that ends in time.
+    """
+    need = latest(onset_s) + duration_s + RECOVERY_S
+    if need <= horizon_s + 1e-9:
+        return
+    room = horizon_s - duration_s - RECOVERY_S  # the latest onset that would fit
+    onset = f"{onset_s[0]:g}-{onset_s[1]:g} s" if isinstance(onset_s, tuple) else f"{onset_s:g} s"
+    fix = f"an episode of at least {need:.6g} s (episode_s / horizon_s)"
+    if room >= 0:
+        fix += f", or an explicit {field_name} range that ends by {room:.6g} s"
+    raise InvalidConfigError(
+        f"{family}: {field_name} {onset} + duration {duration_s:g} s + recovery window "
+        f"{RECOVERY_S:g} s does not fit in the episode's horizon_s = {horizon_s:g} s (the "
+        f"disturbance could come too late to be measured, or never); use {fix}"
+    )
+
+
+def min_horizon_s(items: Sequence[Disturbance]) -> float:
+    """The shortest episode (s) that ``items`` accept: max over their timed events of
+    max(onset) + duration + :data:`RECOVERY_S`; 0 without a timed event."""
+    return max(
+        (
+            latest(onset_s) + duration_s + RECOVERY_S
+            for d in items
+            for _, onset_s, duration_s in d.timed_events()
+        ),
+        default=0.0,
+    )

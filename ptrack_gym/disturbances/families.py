@@ -4,7 +4,9 @@ Each class is a dataclass whose fields are its spec (``{"type": name, field: val
 and registers itself under its ``name`` (:data:`~ptrack_gym.disturbances.base.DISTURBANCES`).
 Magnitudes are given as fractions of the torque limits, as accelerations per unit of
 joint inertia (``accel_rad_s2``: comparable on light wrists and heavy shoulders) or as
-energy budgets (``energy_j``).
+energy budgets (``energy_j``). Families with onsets (impulse, step, push, payload) refuse,
+at env construction, an episode too short for their latest onset, its duration and the
+recovery window :data:`~ptrack_gym.disturbances.base.RECOVERY_S` (``timed_events``).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from ptrack_gym.disturbances.base import (
     DisturbanceContext,
     FloatArray,
     MassChange,
+    TimedEvent,
     check_link,
     check_non_negative,
     draw,
@@ -78,6 +81,9 @@ class ImpulseTorque(Disturbance):
             )
         if self.energy_mode == "delivered" and self.energy_j is None:
             raise InvalidConfigError("energy_mode='delivered' needs energy_j")
+
+    def timed_events(self) -> tuple[TimedEvent, ...]:
+        return (("onset_s", self.onset_s, self.duration_s),)
 
     def validate(self, ctx: DisturbanceContext) -> None:
         if self.direction is not None:
@@ -178,6 +184,9 @@ class StepTorque(Disturbance):
         check_non_negative(self.fraction, "fraction")
         if self.energy_j is not None:
             check_non_negative(self.energy_j, "energy_j")
+
+    def timed_events(self) -> tuple[TimedEvent, ...]:
+        return (("onset_s", self.onset_s, 0.0),)
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._onset = draw(rng, self.onset_s)
@@ -305,6 +314,9 @@ class Push(Disturbance):
         if self.direction is not None:
             fixed_direction(self.direction, 3, "direction")
 
+    def timed_events(self) -> tuple[TimedEvent, ...]:
+        return (("onset_s", self.onset_s, self.duration_s),)
+
     def validate(self, ctx: DisturbanceContext) -> None:
         check_link(self.link, ctx, "push")
 
@@ -352,6 +364,10 @@ class Payload(Disturbance):
 
     def __post_init__(self) -> None:
         check_non_negative(self.mass_kg, "mass_kg")
+
+    def timed_events(self) -> tuple[TimedEvent, ...]:
+        pick: TimedEvent = ("pick_s", self.pick_s, 0.0)
+        return (pick,) if self.drop_s is None else (pick, ("drop_s", self.drop_s, 0.0))
 
     def validate(self, ctx: DisturbanceContext) -> None:
         check_link(self.link, ctx, "payload")

@@ -17,7 +17,7 @@ from typing import Any
 
 from ptrack_gym.disturbances.base import DISTURBANCES, Disturbance
 from ptrack_gym.errors import InvalidConfigError
-from ptrack_gym.robots.profile import RobotProfile
+from ptrack_gym.robots.profile import DisturbanceScales, RobotProfile
 
 PRESETS: tuple[str, ...] = (
     "none",
@@ -45,9 +45,16 @@ def preset_specs(name: str, level: float, profile: RobotProfile) -> list[dict[st
     (1 mrad, 10 mrad/s), actuation noise (1 rad/s² per joint inertia) and a 5 Hz
     band-limited torque (1 rad/s²); a payload of ``payload_kg`` is picked up between 1 and
     4 s; the mismatch preset scales link masses by ±20%, with damping 0.5/s and friction
-    0.5 rad/s².
+    0.5 rad/s². The onsets (1-4 s) are the same at every level, so are the shortest
+    episodes these accept (:func:`~ptrack_gym.disturbances.base.min_horizon_s`: the latest
+    onset + duration + 0.5 s of recovery): impulse and mixed 4.55 s, push 4.6 s, payload
+    4.5 s; the others any length.
     """
-    sc = profile.disturbance_scales
+    return _specs(name, level, profile.disturbance_scales)
+
+
+def _specs(name: str, level: float, sc: DisturbanceScales) -> list[dict[str, Any]]:
+    """:func:`preset_specs` from the robot's level-1 scales."""
     specs: dict[str, list[dict[str, Any]]] = {
         "none": [],
         "impulse": [{"type": "impulse", "energy_j": sc.impulse_j * level, "duration_s": 0.05}],
@@ -71,14 +78,31 @@ def preset_specs(name: str, level: float, profile: RobotProfile) -> list[dict[st
     }
     if name == "mixed":
         return [
-            *preset_specs("impulse", 0.5 * level, profile),
-            *preset_specs("periodic", 0.5 * level, profile),
-            *preset_specs("noise", 0.5 * level, profile),
-            *preset_specs("payload", 0.5 * level, profile),
+            *_specs("impulse", 0.5 * level, sc),
+            *_specs("periodic", 0.5 * level, sc),
+            *_specs("noise", 0.5 * level, sc),
+            *_specs("payload", 0.5 * level, sc),
         ]
     if name not in specs:
         raise InvalidConfigError(f"unknown disturbance preset {name!r}; known: {sorted(PRESETS)}")
     return specs[name] if level > 0 else []
+
+
+def preset_does_work(name: str) -> bool:
+    """Whether preset ``name`` (at a level > 0) acts through a joint torque, a force or an
+    actuation error — what the work ledger ``info["disturbance_work_j"]`` counts — so that
+    an episode it acted in has done work on the arm (≠ 0 J); False for a preset that only
+    changes the plant's masses or the sensors (``payload``: its ledger reads 0 J even when it
+    acts). An unknown name counts as doing work. The families of a preset are the same for
+    every robot."""
+    if name not in PRESETS:
+        return True
+    hooks = ("joint_torque", "wrench", "actuate")
+    return any(
+        getattr(DISTURBANCES[spec["type"]], hook) is not getattr(Disturbance, hook)
+        for spec in _specs(name, 1.0, DisturbanceScales(1.0, 1.0, 1.0, ()))
+        for hook in hooks
+    )
 
 
 def from_spec(spec: Mapping[str, Any]) -> Disturbance:

@@ -53,9 +53,10 @@ class DisturbanceRunner:
         self._plant_window = (np.inf, -np.inf)  # [from, until) the applied plant holds
 
     def validate(self, ctx: DisturbanceContext) -> None:
-        """Check every disturbance against the env (links, directions); raises
-        :class:`~ptrack_gym.errors.InvalidConfigError`."""
+        """Check every disturbance against the env (links, directions, onsets that fit in
+        ``ctx.horizon_s``); raises :class:`~ptrack_gym.errors.InvalidConfigError`."""
         for d in self.items:
+            d.check_horizon(ctx.horizon_s)
             d.validate(ctx)
 
     def set_context(self, ctx: DisturbanceContext) -> None:

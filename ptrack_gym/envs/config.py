@@ -152,6 +152,8 @@ class EnvConfig:
                 f"render_mode must be None or one of {RENDER_MODES}, got {self.render_mode!r}"
             )
         set_(self, "disturbances", build_disturbances(self.disturbance, self.profile))
+        for d in self.disturbances:  # onsets that fit the episode, before any simulator
+            d.check_horizon(self.horizon_s)
 
     @property
     def substeps(self) -> int:

@@ -114,7 +114,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
     ``max_path_distance_rad`` (None: no off-path termination);
     ``disturbance`` (see :mod:`ptrack_gym.disturbances`: a preset name,
     ``(preset, level)``, specs or a list); ``horizon_s`` (the nominal episode length the
-    disturbances draw onsets and energy budgets for, 10 s); ``info_energy`` (False);
+    disturbances draw onsets and energy budgets for, 10 s; a disturbance whose latest
+    onset + duration + 0.5 s of recovery does not fit in it is refused); ``info_energy`` (False);
     ``render_mode`` ("rgb_array" works headless); ``gui``. Unknown arguments raise
     ``TypeError``; bad values ``ValueError`` (:class:`~ptrack_gym.envs.config.EnvConfig`).
 
