@@ -2,9 +2,11 @@
 
 :func:`register_residual_envs` registers one id per robot and base controller with
 Gymnasium, entry point :func:`residual_env` (a string, so nothing is imported until
-``gym.make``) and the plain id's time limit; ``import agents`` calls it, and ``ptrack_gym``
-never imports ``agents``. ``gym.make(id, **options)`` takes the residual's options
-(:class:`~agents.residual_spec.ResidualSpec` fields) and the env's arguments alike.
+``gym.make``) and the plain id's time limit; ``import agents`` calls it. ``import
+ptrack_gym`` registers the same ids with the same string entry point (its
+``RESIDUAL_BASES``) without importing ``agents``. ``gym.make(id, **options)`` takes the
+residual's options (:class:`~agents.residual_spec.ResidualSpec` fields) and the env's
+arguments alike.
 """
 
 from __future__ import annotations

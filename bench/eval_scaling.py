@@ -100,7 +100,7 @@ import sys, time
 from train.evaluation.episode import run_episode
 from train.evaluation.config import load_config
 from train.common.runs import worker_pool
-cfg = load_config(None, ["episode_s=0.1", "plots=false", "seeds=1"])
+cfg = load_config(None, ["episode_s=0.1", "plots=false", "seeds=1", "disturbances=[none]"])
 task, settings = cfg.tasks()[0], cfg.settings()
 t0 = time.perf_counter()
 pool = worker_pool(1, sys.argv[1])

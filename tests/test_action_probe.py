@@ -48,11 +48,11 @@ def _train(out: Path, extra: list[str]) -> Path:
 
 
 def test_a_frozen_zero_initialised_residual_uses_no_authority(tmp_path: Path, capsys) -> None:
-    # the actor starts at exactly 0 and the critic warm-up outlasts training: the
-    # deterministic residual is 0 on every step, the episode is its base's
+    # the actor starts at exactly 0 and is frozen: the deterministic residual is 0 on
+    # every step, the episode is its base's
     run = _train(
         tmp_path / "res",
-        ["--residual", "passivity", "--zero-init-residual", "--critic-warmup-steps", "1000"],
+        ["--residual", "passivity", "--zero-init-residual", "--freeze-actor"],
     )
     u = action_usage(run, seed=3)
     assert u.steps == 50  # 0.2 s at the two-link's 250 Hz training rate

@@ -104,6 +104,7 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
         ("families=[]", "families"),
         ("families=[earthquake]", "families"),
         ("budget=0", "budget"),
+        ("budget=9", r"budget must be >= 10 \(the search starts from the best tenth"),
         ("controllers=[lqr]", "controllers"),
         ("push_links=[no_such_link]", "no link 'no_such_link'"),
         ("energy_mode=kinetic", "energy_mode"),
@@ -113,7 +114,7 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
 )
 def test_bad_input_is_refused_before_any_episode(tmp_path, override, match, capsys) -> None:
     extra = ["families=[push]"] if "push_links" in override else []
-    cfg = load_config(None, [*TINY, "budget=4", *extra, override, f"out={tmp_path / 'x'}"])
+    cfg = load_config(None, [*TINY, "budget=10", *extra, override, f"out={tmp_path / 'x'}"])
     with pytest.raises(InvalidConfigError, match=match):
         run_search(cfg, progress=False)
     assert not (tmp_path / "x").exists()
@@ -130,7 +131,7 @@ def test_tuned_gains_that_do_not_exist_are_refused_before_any_episode(
     import agents.registry
 
     monkeypatch.setattr(agents.registry, "TUNED_DIR", tmp_path / "none")
-    cfg = load_config(None, [*TINY, "budget=4", "gains=tuned", f"out={tmp_path / 'x'}"])
+    cfg = load_config(None, [*TINY, "budget=10", "gains=tuned", f"out={tmp_path / 'x'}"])
     with pytest.raises(InvalidConfigError, match="no tuned gains for pd_gravity"):
         run_search(cfg, progress=False)
     assert not (tmp_path / "x").exists()

@@ -13,7 +13,7 @@ SHORT = {"control_hz": 250.0, "episode_s": 1.0, "seeds": [3, 4]}
 
 
 def test_zero_authority_is_the_base_exactly() -> None:
-    r = probe(TWO_LINK, "passivity", "default", disturbance="impulse:1.0", alpha=0.0,
+    r = probe(TWO_LINK, "passivity", "default", disturbance="periodic:1.0", alpha=0.0,
               gate_rad=None, **SHORT)  # fmt: skip
     assert r.probe_rms == r.base_rms and r.ratio == 1.0
 
@@ -33,10 +33,10 @@ def test_inside_the_deadband_it_is_the_base_and_outside_it_acts() -> None:
 def test_cli_prints_one_row_per_condition(capsys) -> None:
     results = main(
         ["--env", TWO_LINK, "--control-hz", "250", "--episode-s", "0.5", "--alpha", "0", "5",
-         "--disturbance", "none", "impulse", "--seeds", "1"]
+         "--disturbance", "none", "periodic", "--seeds", "1"]
     )  # fmt: skip
     assert [(r.disturbance, r.alpha) for r in results] == [
-        ("none", 0.0), ("none", 5.0), ("impulse:1.0", 0.0), ("impulse:1.0", 5.0)
+        ("none", 0.0), ("none", 5.0), ("periodic:1.0", 0.0), ("periodic:1.0", 5.0)
     ]  # fmt: skip
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 2 + 4 and lines[0].startswith("| disturbance")  # header, rule, rows

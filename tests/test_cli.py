@@ -89,3 +89,28 @@ def test_the_module_entry_points_run(module: str) -> None:
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert "--config" in done.stdout
+
+
+def test_a_missing_file_is_a_usage_error_and_a_failure_is_status_1(
+    tmp_path, capsys, monkeypatch
+) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["replay", str(tmp_path)])
+    assert exc.value.code == 2
+    assert "worst.yml does not exist" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main(["evaluate", "--config", str(tmp_path / "nope.yml")])
+    assert exc.value.code == 2
+    assert "nope.yml" in capsys.readouterr().err
+
+    def broken(args, parser):
+        raise RuntimeError("the pool died")
+
+    summary, build, _ = COMMANDS["report"]
+    monkeypatch.setitem(COMMANDS, "report", (summary, build, broken))
+    monkeypatch.delenv("PTRACK_TRACEBACK", raising=False)
+    assert main(["report", str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert err.strip() == (
+        "ptrack report: failed: RuntimeError: the pool died (PTRACK_TRACEBACK=1 shows where)"
+    )

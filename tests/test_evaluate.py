@@ -31,7 +31,7 @@ from train.evaluation.sweep import _run_processes, finish, run_sweep
 TINY = [
     "env_id=ptrack_gym/TwoLinkTrack-v0",
     "controllers=[computed_torque, passivity]",
-    "disturbances=[none, impulse]",
+    "disturbances=[none, periodic]",  # acts from t = 0: an impulse (1-4 s) needs >= 4.55 s
     "levels=[1.0]",
     "seeds=2",
     "episode_s=0.4",
@@ -66,7 +66,7 @@ def test_tiny_sweep_writes_tables_provenance_and_plots(full_run) -> None:
     out = full_run
     df = pd.read_csv(out / "episodes.csv")
     assert list(df.columns) == list(COLUMNS)
-    # 2 controllers × (none + impulse@1) × 2 seeds × 1 episode
+    # 2 controllers × (none + periodic@1) × 2 seeds × 1 episode
     assert len(df) == 8
     assert set(df["controller"]) == {"computed_torque", "passivity"}
     assert df["path_dist_rms"].notna().all() and (df["steps"] == 400).all()
@@ -357,7 +357,8 @@ def test_a_sweep_on_another_path_runs_every_entrant_on_that_path(monkeypatch) ->
 
     monkeypatch.chdir(Path(__file__).resolve().parents[1])
     cfg = load_config(
-        Path("train/configs/evaluate/main_rl.yml"), ["episode_s=0.4", "path=random", "path_seed=3"]
+        Path("train/configs/evaluate/main_rl.yml"),
+        ["episode_s=0.4", "path=random", "path_seed=3", "disturbances=[none]"],  # 0.4 s: no onset
     )
     settings = cfg.settings()
     default = dataclasses.replace(settings, path="default", path_seed=None)
@@ -461,14 +462,18 @@ def test_resume_refuses_a_different_sweep(full_run, tmp_path) -> None:
 
 
 def test_every_preset_runs_in_an_episode() -> None:
-    """Each preset's schedule has what the metrics read (a push has a duration, ...)."""
-    from ptrack_gym.disturbances import PRESETS
+    """Each preset's schedule has what the metrics read (a push has a duration, ...), in
+    the shortest episode every preset accepts (4.6 s: a push's latest onset, its duration
+    and the recovery window), where each one that pushes the arm does work on it."""
+    from ptrack_gym.disturbances import PRESETS, preset_does_work
     from train.evaluation.episode import EpisodeSettings, Task, run_episode
 
-    settings = EpisodeSettings("ptrack_gym/TwoLinkTrack-v0", 0.05, 1000.0, "on_path", 0.5, 0.01)
+    settings = EpisodeSettings("ptrack_gym/TwoLinkTrack-v0", 4.6, 250.0, "on_path", 0.5, 0.01)
     for preset in PRESETS:
         row, _ = run_episode(Task("pd_gravity", preset, 1.0, 0, 0), settings)
-        assert row["steps"] == 50 and np.isfinite(row["path_dist_rms"]), preset
+        assert row["steps"] == 1150 and np.isfinite(row["path_dist_rms"]), preset
+        if preset != "none" and preset_does_work(preset):
+            assert row["disturbance_work_j"] != 0.0, preset
 
 
 def test_recovery_median_counts_episodes_that_never_recovered() -> None:

@@ -147,7 +147,7 @@ def test_a_run_trains_on_decisions_and_is_evaluated_holding_them(tmp_path) -> No
         env_id=TWO_LINK, episode_s=0.2, control_hz=250.0, start="on_path", gains="default",
         failure_distance_rad=0.5, recovery_threshold_rad=0.01,
     )  # fmt: skip
-    row, _ = run_episode(Task(f"sb3:{out}", "impulse", 1.0, 0, 0), settings)
+    row, _ = run_episode(Task(f"sb3:{out}", "periodic", 1.0, 0, 0), settings)  # acts at once
     assert row["steps"] == 50
-    _, policy = _sb3_env_and_policy(f"sb3:{out}", settings, "impulse", 1.0)
+    _, policy = _sb3_env_and_policy(f"sb3:{out}", settings, "periodic", 1.0)
     assert isinstance(policy, HeldActionPolicy) and policy.k == 5

@@ -50,7 +50,7 @@ def test_a_study_writes_resumes_and_refuses_to_overwrite(tmp_path) -> None:
     assert (df["refused"] == 0).all() and np.isfinite(df["path_dist_rms"]).all()
     report = (out / "report.md").read_text()
     assert "## two_link, none" in report and "## Where each controller holds" in report
-    with pytest.raises(InvalidConfigError, match="pass --resume"):
+    with pytest.raises(InvalidConfigError, match="--resume continues that run"):
         run_study(cfg, progress=False)
     run_study(cfg, resume=True, progress=False)  # nothing left to run
     assert len(load_frame(out / "episodes.csv")) == 4

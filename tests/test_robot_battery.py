@@ -22,6 +22,7 @@ from agents.passivity import PassivityController, PassivityGains
 from agents.passivity_tables import PassivityTables
 from agents.registry import CONTROLLER_NAMES
 from ptrack_gym.disturbances import PRESETS
+from ptrack_gym.disturbances.presets import preset_does_work
 from ptrack_gym.paths import (
     check_joint_limits,
     default_path,
@@ -229,21 +230,29 @@ def test_the_profiles_paths_are_admissible(robot) -> None:
 
 @pytest.mark.parametrize("preset", [p for p in PRESETS if p != "none"])
 def test_every_preset_acts_and_keeps_a_controlled_arm_stable(robot_name: str, preset: str) -> None:
-    """Each preset at level 1, for 2 s under computed torque (onsets moved into the run):
-    no instability, and the disturbance reaches the plant (torque, work, masses or sensing)."""
-    settings = EpisodeSettings(robot_profile(robot_name).env_id, 2.0, 1000.0, "on_path", 0.5, 0.01)
+    """Each preset at level 1, for the shortest episode every preset's onset window fits
+    (4.6 s: onsets in 1-4 s, the event, a 0.5-s recovery) under computed torque: no
+    instability, and a preset that acts through a torque or force did work on the arm.
+    Failure here is instability (or > 3 rad off the path): a level-1 push carries the
+    xArm6 up to 1.25 rad off its path under the time-indexed controllers at default gains
+    (docs/experiments.md, "pushes on the xArm6"), which the evaluation counts as failed."""
+    env_id = robot_profile(robot_name).env_id
+    settings = EpisodeSettings(env_id, 4.6, 1000.0, "on_path", 3.0, 0.01)
     row, _ = run_episode(Task("computed_torque", preset, 1.0, 0, 0), settings)
-    assert row["steps"] == 2000
+    assert row["steps"] == 4600
     assert not row["failed"], preset
+    if preset_does_work(preset):
+        assert row["disturbance_work_j"] != 0.0, preset
 
 
 @pytest.mark.parametrize("controller", CONTROLLER_NAMES)
 def test_main_job_style_episode_per_controller(robot_name: str, controller: str) -> None:
-    """4 s on the path with an impulse of the robot's level-1 energy: the default gains hold
-    the arm near its path (no failure), and the metrics are finite."""
+    """4.55 s on the path (the impulse's onset window fits) with an impulse of the robot's
+    level-1 energy: the default gains hold the arm near its path (no failure), and the
+    metrics are finite."""
     profile = robot_profile(robot_name)
-    settings = EpisodeSettings(profile.env_id, 4.0, 1000.0, "on_path", 0.5, 0.01)
+    settings = EpisodeSettings(profile.env_id, 4.55, 1000.0, "on_path", 0.5, 0.01)
     row, _ = run_episode(Task(controller, "impulse", 1.0, 1, 0), settings)
-    assert row["steps"] == 4000
+    assert row["steps"] == 4550
     assert not row["failed"]
     assert np.isfinite(row["path_dist_rms"]) and row["path_dist_rms"] < 0.05

@@ -43,7 +43,8 @@ def test_sbx_run_saves_reloads_as_the_evaluation_does_and_resumes(
     from train.evaluation.policies import load_sb3_policy
 
     out = tmp_path / "run"
-    first = run(parse_args(argv(out, algo, residual, 200, "--disturbance", "impulse:0.5")))
+    # periodic: it acts from t = 0; an impulse (onsets 1-4 s) is refused in 0.2-s episodes
+    first = run(parse_args(argv(out, algo, residual, 200, "--disturbance", "periodic:0.5")))
     assert isinstance(first.model, {"sac": sbx.SAC, "td3": sbx.TD3}[algo])
     assert first.num_timesteps == 200
     saved = yaml.safe_load((out / "config.yml").read_text())
@@ -61,12 +62,12 @@ def test_sbx_run_saves_reloads_as_the_evaluation_does_and_resumes(
     a_disk, _ = policy.predict(obs)
     np.testing.assert_array_equal(a_mem, a_disk)
 
-    second = run(parse_args(argv(out, algo, residual, 100, "--disturbance", "impulse:0.5",
+    second = run(parse_args(argv(out, algo, residual, 100, "--disturbance", "periodic:0.5",
                                  "--resume")))  # fmt: skip
     assert second.num_timesteps == 300
     assert second.model.replay_buffer.size() == 300
     with pytest.raises(TrainConfigError, match="backend"):  # resumed by the other backend
-        cli = argv(out, algo, residual, 100, "--disturbance", "impulse:0.5", "--resume")
+        cli = argv(out, algo, residual, 100, "--disturbance", "periodic:0.5", "--resume")
         run(parse_args([a if a != "sbx" else "sb3" for a in cli]))
 
 

@@ -7,6 +7,7 @@ whole file stays well under a minute on a loaded 2-core machine.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import re
 import shlex
@@ -83,7 +84,8 @@ def argv(out: Path, algo: str, residual: str, steps: int, *extra: str) -> list[s
 )
 def test_short_run_saves_a_reloadable_model(tmp_path: Path, algo: str, residual: str) -> None:
     out = tmp_path / "run"
-    cfg = parse_args(argv(out, algo, residual, 200, "--disturbance", "impulse:0.5"))
+    # periodic: it acts from t = 0; an impulse (onsets 1-4 s) is refused in 0.2-s episodes
+    cfg = parse_args(argv(out, algo, residual, 200, "--disturbance", "periodic:0.5"))
     result = run(cfg)
     model = result.model
     assert result.num_timesteps >= 200
@@ -115,11 +117,15 @@ def test_short_run_saves_a_reloadable_model(tmp_path: Path, algo: str, residual:
 
 
 def test_resume_continues_steps_replay_buffer_and_statistics(tmp_path: Path) -> None:
+    """``--out RUN --resume --steps N`` alone continues the run as it was: every field not
+    given is the run's (its config.yml), but the steps to add."""
     out = tmp_path / "run"
-    first = run(parse_args(argv(out, "sac", "passivity", 200)))
+    first = run(parse_args(argv(out, "sac", "passivity", 200, "--reward", "kernel")))
     assert first.num_timesteps == 200
     count_before = first.model.get_vec_normalize_env().obs_rms.count
-    second = run(parse_args(argv(out, "sac", "passivity", 200, "--resume")))
+    resumed = parse_args(["--out", str(out), "--resume", "--steps", "200"])
+    assert resumed == dataclasses.replace(first_cfg(out), resume=True, steps=200)
+    second = run(resumed)
     assert second.num_timesteps == 400
     assert second.model.replay_buffer.size() == 400
     # VecNormalize continued from the checkpoint: 200 more observations (plus resets).
@@ -130,13 +136,39 @@ def test_resume_continues_steps_replay_buffer_and_statistics(tmp_path: Path) -> 
         "rl_model_replay_buffer_400_steps.pkl"
     ]
     assert len((out / "command.txt").read_text().splitlines()) == 2
-    with pytest.raises(TrainConfigError, match="differs"):
-        run(parse_args(argv(out, "sac", "computed_torque", 100, "--resume")))
-    with pytest.raises(TrainConfigError, match="reward_weights"):
-        run(parse_args(argv(out, "sac", "passivity", 100, "--resume",
-                            "--reward-weights", "10", "0", "0.01")))  # fmt: skip
-    with pytest.raises(TrainConfigError, match="already holds a run"):
+    # every given value that differs from the run's, in one error (the run's → given)
+    with pytest.raises(TrainConfigError, match="3 setting") as exc:
+        run(parse_args(["--out", str(out), "--resume", "--residual", "computed_torque",
+                        "--reward-weights", "10", "0", "0.01", "--n-envs", "2"]))  # fmt: skip
+    message = str(exc.value)
+    assert "residual: 'passivity' → 'computed_torque'" in message
+    assert "reward_weights: None → [10.0, 0.0, 0.01]" in message and "n_envs: 1 → 2" in message
+    assert "vec_normalize" not in message
+    with pytest.raises(TrainConfigError, match=r"vec_normalize: True → False"):
+        run(parse_args(["--out", str(out), "--resume", "--no-vec-normalize"]))
+    other = tmp_path / "other.yml"  # a config file and --set are given values too
+    other.write_text("start: rest_near_path\n")
+    with pytest.raises(TrainConfigError, match="2 setting") as exc:
+        run(parse_args(["--out", str(out), "--resume", "--config", str(other),
+                        "--set", "episode_s=0.3"]))  # fmt: skip
+    assert "start: 'on_path' → 'rest_near_path'; episode_s: 0.2 → 0.3" in str(exc.value)
+    hp = parse_args(["--out", str(out), "--resume", "--hp", "gamma=0.9"])
+    assert hp.overrides == {**first_cfg(out).overrides, "gamma": 0.9}  # --hp over the run's
+    with pytest.raises(TrainConfigError, match="overrides: "):  # the checkpoint's are loaded
+        validate(hp)
+    validate(parse_args(["--out", str(out), "--resume", "--hp", "n_timesteps=50"]))
+    assert len((out / "command.txt").read_text().splitlines()) == 2  # refused: nothing written
+    with pytest.raises(TrainConfigError, match=r"already holds a run \(400 steps\)"):
         run(parse_args(argv(out, "sac", "passivity", 100)))
+    # a warm-up counts from the run's start: learning_starts 50 + 480 >= 400 done + 100
+    with pytest.raises(TrainConfigError, match=r"= 530 >= the run's last step, 400 done"):
+        run(parse_args(["--out", str(out), "--resume", "--steps", "100",
+                        "--critic-warmup-steps", "480"]))  # fmt: skip
+
+
+def first_cfg(out: Path) -> TrainConfig:
+    """The config a run saved (its config.yml's ``config`` section)."""
+    return TrainConfig(**yaml.safe_load((out / "config.yml").read_text())["config"])
 
 
 def test_an_interrupted_run_saves_the_steps_it_took_and_resumes_from_them(
@@ -211,6 +243,15 @@ def test_sigterm_is_an_interruption_while_a_run_trains_only() -> None:
         (["--reward-weights", "10", "-1", "0"], "reward_weights"),
         (["--reward-weights", "10", "nan", "0"], "reward_weights"),
         (["--resume"], "no checkpoint"),
+        (["--seed", "-1"], "seed must be >= 0, got -1"),
+        (["--control-hz", "0"], "control_hz must be > 0"),
+        (["--episode-s", "0.001"], "less than one control step"),
+        (["--device", "gpu0"], "not a torch device"),
+        (["--hp", "learning_rate=-1"], "learning_rate=-1"),
+        (["--hp", "train_freq=0"], "train_freq=0"),
+        (["--hp", "noise_type=pink"], "noise_type must be one of"),
+        (["--steps", "50"], r"learning_starts \(50\) >= the run's last step, steps \(50\)"),
+        (["--critic-warmup-steps", "50"], r"learning_starts \(50\) \+ critic_warmup_steps \(50\)"),
     ],
 )
 def test_bad_config_raises_before_anything_is_written(
@@ -319,14 +360,17 @@ def test_reward_weights_reach_the_training_env() -> None:
 
 
 def test_critic_warmup_freezes_the_actor_and_zero_actor_runs_the_base(tmp_path: Path) -> None:
-    """With ``--zero-init-residual --critic-warmup-steps`` covering the whole run, the critic
-    learns (updates are made) while the actor stays exactly as initialised: zero mean, the
-    ``--init-log-std`` head; its deterministic actions are exactly 0, so its episode is
-    the base controller's, bit for bit. Without the warm-up the same run moves the actor."""
+    """With ``--zero-init-residual --freeze-actor`` the critic learns (updates are made)
+    while the actor stays exactly as initialised: zero mean, the ``--init-log-std`` head;
+    its deterministic actions are exactly 0, so its episode is the base controller's, bit
+    for bit. A critic warm-up holds the actor so until it ends, and the run moves it after."""
     common = ["--zero-init-residual", "--init-log-std", "-3", "--hp", "learning_starts=0"]
     frozen = run(parse_args(argv(tmp_path / "f", "sac", "passivity", 120, *common,
-                                 "--critic-warmup-steps", "500")))  # fmt: skip
-    free = run(parse_args(argv(tmp_path / "u", "sac", "passivity", 120, *common)))
+                                 "--freeze-actor")))  # fmt: skip
+    # a warm-up of 100 steps: the checkpoint at 100 is still the initial actor, the end not
+    warm = run(parse_args(argv(tmp_path / "u", "sac", "passivity", 120, *common,
+                               "--critic-warmup-steps", "100")))  # fmt: skip
+    at_100 = SAC.load(tmp_path / "u" / "checkpoints" / "rl_model_100_steps.zip", device="cpu")
     actor = frozen.model.policy.actor
     assert frozen.model._n_updates > 0
     with torch.no_grad():
@@ -334,7 +378,8 @@ def test_critic_warmup_freezes_the_actor_and_zero_actor_runs_the_base(tmp_path: 
         assert float(actor.mu.bias.abs().max()) == 0.0
         assert float(actor.log_std.weight.abs().max()) == 0.0
         np.testing.assert_array_equal(actor.log_std.bias.numpy(), [-3.0, -3.0])
-        assert float(free.model.policy.actor.mu.weight.abs().max()) > 0.0
+        assert float(at_100.policy.actor.mu.weight.abs().max()) == 0.0
+        assert float(warm.model.policy.actor.mu.weight.abs().max()) > 0.0
     assert all(p.requires_grad for p in actor.parameters())  # released at the end
 
     model = SAC.load(str(tmp_path / "f" / "model.zip"), device="cpu")
@@ -355,7 +400,7 @@ def test_critic_warmup_freezes_the_actor_and_zero_actor_runs_the_base(tmp_path: 
 
 def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
     res = validate(
-        parse_args(argv(tmp_path / "k", "sac", "computed_torque", 10, "--reward", "kernel",
+        parse_args(argv(tmp_path / "k", "sac", "computed_torque", 100, "--reward", "kernel",
                         "--kernel-weights", "1", "0", "0", "--max-path-distance", "0.3",
                         "--action-penalty", "0.05", "--gate-rad", "0.02"))
     )  # fmt: skip
@@ -390,7 +435,7 @@ def test_tuned_base_gains_reach_the_training_env(tmp_path: Path) -> None:
     from train.rl.run import _env_factory
 
     res = validate(
-        parse_args(argv(tmp_path / "t", "sac", "passivity", 10, "--base-gains", "tuned"))
+        parse_args(argv(tmp_path / "t", "sac", "passivity", 100, "--base-gains", "tuned"))
     )
     assert res.residual_kwargs["base_gains"] == "tuned"
     env = _env_factory(res, "none")()
@@ -405,7 +450,7 @@ def test_control_prior_reaches_the_training_env(tmp_path: Path) -> None:
     from train.rl.run import _env_factory
 
     res = validate(
-        parse_args(argv(tmp_path / "p", "sac", "passivity", 10, "--prior-gain-per-rad", "1000",
+        parse_args(argv(tmp_path / "p", "sac", "passivity", 100, "--prior-gain-per-rad", "1000",
                         "--scale-accel-rad-s2", "10"))
     )  # fmt: skip
     assert res.residual_kwargs["prior_gain_per_rad"] == 1000.0
@@ -421,7 +466,7 @@ def test_acceleration_authority_reaches_the_training_env(tmp_path: Path) -> None
     from train.rl.run import _env_factory
 
     res = validate(
-        parse_args(argv(tmp_path / "a", "sac", "computed_torque", 10,
+        parse_args(argv(tmp_path / "a", "sac", "computed_torque", 100,
                         "--scale-accel-rad-s2", "10"))
     )  # fmt: skip
     assert res.residual_kwargs == {
@@ -499,6 +544,141 @@ def test_resume_compares_a_key_the_run_predates_with_its_default(tmp_path: Path)
     saved = yaml.safe_load(cfg_file.read_text())
     del saved["config"]["decision_every"]
     cfg_file.write_text(yaml.safe_dump(saved))
-    with pytest.raises(TrainConfigError, match="decision_every=5 differs from the run's 1"):
+    with pytest.raises(TrainConfigError, match="decision_every: 1 → 5"):
         run(parse_args(argv(out, "sac", "passivity", 100, "--eval-freq", "0", "--resume",
                             "--decision-every", "5")))  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("fields", "named"),
+    [
+        ({"seed": -1, "n_envs": 0, "eval_freq": -1}, ["seed", "n_envs", "eval_freq"]),
+        ({"eval_episodes": 0, "checkpoint_freq": -5, "torch_threads": 0},
+         ["eval_episodes", "checkpoint_freq", "torch_threads"]),
+        ({"steps": 0, "verbose": 3, "seed": 2**32}, ["steps", "verbose", "seed must be < 2**32"]),
+        ({"episode_s": float("inf"), "control_hz": -1.0}, ["episode_s", "control_hz"]),
+        ({"imitate_rounds": -1, "imitate_steps": 0, "imitate_round_steps": 0,
+          "imitate_noise": -0.1}, ["imitate_rounds", "imitate_steps", "imitate_round_steps",
+                                   "imitate_noise"]),
+        ({"scale_fraction": float("nan"), "demo_bc_weight": -1.0, "actor_bc_weight": -1.0},
+         ["scale_fraction", "demo_bc_weight", "actor_bc_weight"]),
+        ({"actor_lr_scale": 0.0, "init_log_std": float("nan"), "device": "nowhere"},
+         ["actor_lr_scale", "init_log_std", "device"]),
+    ],
+)  # fmt: skip
+def test_every_number_out_of_its_domain_is_named_at_once(
+    tmp_path: Path, fields: dict, named: list[str]
+) -> None:
+    with pytest.raises(TrainConfigError) as exc:
+        validate(TrainConfig(out=str(tmp_path / "x"), **fields))
+    for name in named:
+        assert name in str(exc.value)
+    assert not (tmp_path / "x").exists()
+
+
+def test_hyperparameters_out_of_their_domain_are_named_at_once() -> None:
+    from train.rl.hyperparameters import check_domains, resolve_hyperparams
+
+    bad = {"gamma": 1.5, "tau": 0, "batch_size": 0, "buffer_size": 1.0e6, "gradient_steps": -2,
+           "ent_coef": "auto_0", "learning_starts": "5000", "n_timesteps": True}  # fmt: skip
+    with pytest.raises(TrainConfigError) as exc:
+        check_domains(bad)
+    assert all(f"{key}=" in str(exc.value) for key in bad)
+    good = {"gamma": 1.0, "tau": 1, "batch_size": 1, "buffer_size": 10, "gradient_steps": -1,
+            "ent_coef": "auto_0.1", "learning_starts": 0, "train_freq": (1, "episode")}  # fmt: skip
+    check_domains(good)
+    for text in ("lin_-1e-3", "lin_0", "lin_nan"):
+        with pytest.raises(TrainConfigError, match="linear schedule"):
+            resolve_hyperparams("sac", {"learning_rate": text})
+
+
+def test_settings_that_contradict_each_other_are_refused(tmp_path: Path) -> None:
+    """The actor must get an update before the run ends, unless --freeze-actor says it
+    should not; PPO needs two samples to normalise advantages; an episodic train_freq one env."""
+    out = str(tmp_path / "x")
+    fast = ["--hp", "learning_starts=100"]
+    with pytest.raises(TrainConfigError, match=r"learning_starts \(100\) \+ critic_warmup_steps "
+                       r"\(900\) = 1000 >= the run's last step, steps \(1000\)"):  # fmt: skip
+        validate(parse_args(["--out", out, "--steps", "1000", "--critic-warmup-steps", "900",
+                             *fast]))  # fmt: skip
+    validate(parse_args(["--out", out, "--steps", "1001", "--critic-warmup-steps", "900", *fast]))
+    validate(parse_args(["--out", out, "--steps", "10", "--freeze-actor", *fast]))  # on purpose
+    with pytest.raises(TrainConfigError, match="learning_starts \\(5000\\)"):  # the YAML's
+        validate(parse_args(["--out", out, "--steps", "5000"]))
+    for extra, match in (
+        (["--algo", "ppo", "--freeze-actor"], "off-policy"),
+        (["--backend", "sbx", "--freeze-actor"], "torch actor"),
+        (["--algo", "ppo", "--hp", "n_steps=1"], "n_steps"),
+        (["--algo", "ppo", "--hp", "batch_size=1"], "batch_size"),
+        (["--n-envs", "2", "--hp", "train_freq=[1, episode]"], "needs n_envs 1"),
+    ):
+        with pytest.raises(TrainConfigError, match=match):
+            validate(parse_args(["--out", out, *extra]))
+    # a checkpoint or evaluation period beyond the run is fine (the final state is saved)
+    validate(parse_args(["--out", out, "--steps", "6000", "--checkpoint-freq", "10000",
+                         "--eval-freq", "10000"]))  # fmt: skip
+
+
+def test_a_run_that_fails_before_its_first_step_takes_back_what_it_wrote(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A fresh run that fails before a step leaves no folder (the same command starts
+    over); a resume that fails so leaves the run as it was (config.yml, command.txt, no new
+    log folder); a run that failed after steps but before a checkpoint says so."""
+    import gymnasium as gym
+
+    import train.rl.run as tt
+
+    out = tmp_path / "nested" / "run"
+    cmd = argv(out, "sac", "passivity", 100, "--eval-freq", "0")
+
+    def broken(*args: object, **kwargs: object) -> None:
+        raise RuntimeError("broken")
+
+    monkeypatch.setattr(SAC, "_setup_learn", broken)  # inside learn, before the first step
+    with pytest.raises(RuntimeError, match="broken"):
+        run(parse_args(cmd))
+    assert not (tmp_path / "nested").exists()
+    monkeypatch.undo()
+    assert run(parse_args(cmd)).num_timesteps == 100
+
+    files = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    monkeypatch.setattr(tt, "load_checkpoint", broken)
+    with pytest.raises(RuntimeError, match="broken"):
+        run(parse_args(["--out", str(out), "--resume", "--steps", "60"]))
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == files
+    assert not (out / "monitor" / "from_100").exists()
+    monkeypatch.undo()
+    assert run(parse_args(["--out", str(out), "--resume", "--steps", "60"])).num_timesteps == 160
+
+    class Fails(gym.Wrapper):
+        def step(self, action):  # type: ignore[no-untyped-def]
+            self.steps = getattr(self, "steps", 0) + 1
+            if self.steps == 40:
+                raise RuntimeError("diverged")
+            return self.env.step(action)
+
+    real = tt.build_decision_env
+    monkeypatch.setattr(tt, "build_decision_env", lambda *a, **k: Fails(real(*a, **k)))
+    other = tmp_path / "other"
+    with pytest.raises(RuntimeError, match="diverged"):
+        run(parse_args(argv(other, "sac", "passivity", 100, "--eval-freq", "0")))
+    with pytest.raises(TrainConfigError, match="stopped before its first checkpoint"):
+        run(parse_args(argv(other, "sac", "passivity", 100, "--eval-freq", "0")))
+
+
+def test_the_progress_bar_follows_the_terminal_unless_told(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from train.rl.run import progress_bar_on
+
+    out = ["--out", str(tmp_path / "x")]
+    assert parse_args(out).progress_bar is None
+    for words, value in ((["--no-progress"], False), (["--no-progress-bar"], False),
+                         (["--progress-bar"], True), (["--progress"], True)):  # fmt: skip
+        assert parse_args(out + words).progress_bar is value
+    for tty in (True, False):
+        monkeypatch.setattr("sys.stdout.isatty", lambda tty=tty: tty)
+        assert progress_bar_on(parse_args(out)) is tty
+        assert progress_bar_on(parse_args([*out, "--no-progress"])) is False
+        assert progress_bar_on(parse_args([*out, "--progress"])) is True

@@ -34,7 +34,7 @@ def tiny(out: Path, **kw: object) -> TuneConfig:
         trials=2,
         startup_trials=1,
         validation_seeds=[1000],
-        disturbances=["none", "impulse"],
+        disturbances=["none", "periodic"],
         episode_s=1.0,
         control_hz=250.0,
         workers=1,
@@ -120,6 +120,7 @@ def test_validation_seeds_that_the_test_config_uses_are_refused(tmp_path):
         ("controllers", [], "controllers"),
         ("disturbances", ["wind"], "disturbances"),
         ("trials", 0, "trials"),
+        ("startup_trials", 50, r"startup_trials <= trials .*got trials \d+, startup_trials 50"),
         ("validation_seeds", [], "validation_seeds"),
         ("effort_budget", -0.1, "effort_budget"),
         ("effort_budget", float("nan"), "effort_budget"),
@@ -154,7 +155,7 @@ def test_episode_workers_reuse_envs_across_gains_and_keep_few(monkeypatch):
         run_episode(Task("computed_torque", "none", 0.0, 1000, 0), settings)
     assert len(episode._ENV_CACHE) == 1
     (first,) = episode._ENV_CACHE.values()
-    for dist in ("impulse", "periodic"):
+    for dist in ("periodic", "noise"):
         run_episode(Task("computed_torque", dist, 1.0, 1000, 0), settings)
     assert len(episode._ENV_CACHE) == 2
     assert first not in episode._ENV_CACHE.values()

@@ -20,8 +20,9 @@ docstrings). SB3 hyperparameters of ``ptrack train`` come apart, under ``--hp ke
 ``probe-authority``  whether a residual's authority can move the arm at all
 =================  =====================================================================
 
-A bad config or corrupt results folder exits with status 2 and one line saying what is
-wrong; an interrupted run exits with 130 after saving what it reached.
+A bad config, a missing file or a corrupt results folder exits with status 2 and one line
+saying what is wrong; a failure while running exits with status 1 and one line
+(``PTRACK_TRACEBACK=1`` shows the traceback); an interrupted run saves what it reached.
 """
 
 from __future__ import annotations
@@ -33,12 +34,19 @@ from train.common.threads import one_thread_defaults
 one_thread_defaults()
 
 import argparse  # noqa: E402
+import os  # noqa: E402
+import shlex  # noqa: E402
 import sys  # noqa: E402
 from collections.abc import Callable, Sequence  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 from ptrack_gym.errors import PtrackError  # noqa: E402
-from train.common.arguments import add_config_arguments, config_from_args  # noqa: E402
+from train.common.arguments import (  # noqa: E402
+    add_config_arguments,
+    config_from_args,
+    to_argv,
+)
 
 Runner = Callable[[argparse.Namespace, argparse.ArgumentParser], int]
 
@@ -49,6 +57,20 @@ def _progress(parser: argparse.ArgumentParser) -> None:
 
 def _resume(parser: argparse.ArgumentParser, what: str) -> None:
     parser.add_argument("--resume", action="store_true", help=f"continue the {what} in --out")
+    parser.add_argument(
+        "--force", action="store_true",
+        help="start over in an --out that holds files (publishing to docs/results takes it)",
+    )  # fmt: skip
+
+
+def _config(cls: type, args: argparse.Namespace, command: str) -> Any:
+    """The config of ``args``, stated before anything runs: where it came from and every
+    field that differs from the dataclass's defaults."""
+    cfg = config_from_args(cls, args)
+    source = f"--config {args.config}" if args.config else f"no --config: {cls.__name__}'s defaults"
+    fields = " ".join(shlex.quote(w) for w in to_argv(cfg)) or "(none)"
+    print(f"ptrack {command}: {source}; fields set: {fields}", flush=True)
+    return cfg
 
 
 # -- evaluate ------------------------------------------------------------------------------
@@ -61,11 +83,11 @@ def _evaluate_parser(p: argparse.ArgumentParser) -> None:
 
 
 def _evaluate(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
-    from train.evaluation.config import DEFAULT_CONFIG, EvalConfig
+    from train.evaluation.config import EvalConfig
     from train.evaluation.sweep import run_sweep
 
-    cfg = config_from_args(EvalConfig, args, defaults_file=DEFAULT_CONFIG)
-    run_sweep(cfg, resume=args.resume, progress=not args.no_progress)
+    cfg = _config(EvalConfig, args, "evaluate")
+    run_sweep(cfg, resume=args.resume, progress=not args.no_progress, force=args.force)
     return 0
 
 
@@ -78,9 +100,13 @@ def _train_parser(p: argparse.ArgumentParser) -> None:
 
 def _train(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
     from train.rl.config import from_args
+    from train.rl.config import to_argv as train_argv
     from train.rl.run import run, sigterm_as_interrupt
 
-    cfg = from_args(args)
+    cfg = from_args(args)  # on --resume, what was not given comes from the run
+    source = f"--config {args.config}" if args.config else "no --config: TrainConfig's defaults"
+    fields = " ".join(shlex.quote(w) for w in train_argv(cfg))
+    print(f"ptrack train: {source}; fields set: {fields}", flush=True)
     with sigterm_as_interrupt():
         result = run(cfg, args.words)
     print(f"trained {result.num_timesteps} steps; run folder: {result.run_dir}")
@@ -98,7 +124,8 @@ def _study_parser(p: argparse.ArgumentParser) -> None:
 def _study(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
     from train.rl.study import StudyConfig, run_study
 
-    out = run_study(config_from_args(StudyConfig, args), args.resume, not args.no_progress)
+    cfg = _config(StudyConfig, args, "study")
+    out = run_study(cfg, args.resume, not args.no_progress, force=args.force)
     print((out / "final.md").read_text())
     return 0
 
@@ -121,8 +148,9 @@ def _tune(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
     if args.table:
         print(tuned_table())
         return 0
-    cfg = config_from_args(TuneConfig, args)
-    results = tune(cfg, args.resume, TUNED_DIR if args.save else None, not args.no_progress)
+    cfg = _config(TuneConfig, args, "tune")
+    save = TUNED_DIR if args.save else None
+    results = tune(cfg, args.resume, save, not args.no_progress, force=args.force)
     for controller, best in results.items():
         print(f"{controller}: {best}")
     return 0
@@ -139,7 +167,8 @@ def _fronts_parser(p: argparse.ArgumentParser) -> None:
 def _fronts(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
     from train.studies.fronts import FrontConfig, run_fronts
 
-    run_fronts(config_from_args(FrontConfig, args), args.resume, not args.no_progress)
+    cfg = _config(FrontConfig, args, "fronts")
+    run_fronts(cfg, args.resume, not args.no_progress, force=args.force)
     return 0
 
 
@@ -154,18 +183,23 @@ def _adversary_parser(p: argparse.ArgumentParser) -> None:
 def _adversary(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
     from train.studies.adversary import AdversaryConfig, run_search
 
-    run_search(config_from_args(AdversaryConfig, args), args.resume, not args.no_progress)
+    cfg = _config(AdversaryConfig, args, "adversary")
+    run_search(cfg, args.resume, not args.no_progress, force=args.force)
     return 0
 
 
 def _replay_parser(p: argparse.ArgumentParser) -> None:
-    p.add_argument("worst", type=Path, help="a search's worst.yml")
+    p.add_argument("worst", type=Path, help="a search's worst.yml, or its folder")
 
 
 def _replay(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+    from ptrack_gym.errors import InvalidConfigError
     from train.studies.adversary import replay_all
 
-    for line in replay_all(args.worst):
+    worst = args.worst / "worst.yml" if args.worst.is_dir() else args.worst
+    if not worst.is_file():
+        raise InvalidConfigError(f"{worst} does not exist: give a search's worst.yml or folder")
+    for line in replay_all(worst):
         print(line)
     return 0
 
@@ -181,8 +215,8 @@ def _rates_parser(p: argparse.ArgumentParser) -> None:
 def _rates(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
     from train.studies.rates import RatesConfig, run_study
 
-    cfg = config_from_args(RatesConfig, args)
-    out = run_study(cfg, resume=args.resume, progress=not args.no_progress)
+    cfg = _config(RatesConfig, args, "rates")
+    out = run_study(cfg, resume=args.resume, progress=not args.no_progress, force=args.force)
     print((out / "report.md").read_text().split("## Where each controller holds")[-1])
     return 0
 
@@ -325,7 +359,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return run(args, parser)
     except PtrackError as exc:
-        parser.error(str(exc))
+        if isinstance(exc, (ValueError, TypeError)):  # a usage error: one line, status 2
+            parser.error(str(exc))
+        print(f"ptrack {command}: failed: {exc}", file=sys.stderr)  # e.g. a diverged run
+        return 1
+    except FileNotFoundError as exc:  # a path the user gave
+        parser.error(f"{exc.filename}: no such file or folder")
+    except Exception as exc:  # a run-time failure: one line, status 1
+        if os.environ.get("PTRACK_TRACEBACK"):
+            raise
+        print(
+            f"ptrack {command}: failed: {type(exc).__name__}: {exc} "
+            "(PTRACK_TRACEBACK=1 shows where)",
+            file=sys.stderr,
+        )
+        return 1
     return 2  # not reached: parser.error exits
 
 

@@ -3,10 +3,10 @@
 One harness for the evaluation sweep, the control-rate study, gain tuning, the fronts and
 the adversarial search:
 
-* :func:`open_run` — refuse to overwrite a folder that holds results unless ``--resume``;
-  on resume, refuse a config that differs in a field that changes results (the folder
-  would mix two experiments); then write the provenance: ``config.yml`` (the settings) and
-  ``command.txt`` (the command line as it was typed);
+* :func:`open_run` — refuse a folder that holds any file unless ``--resume`` (continue it)
+  or ``--force`` (start over in place); on resume, refuse a config that differs in a field
+  that changes results (the folder would mix two experiments); then write the provenance:
+  ``config.yml`` (the settings) and ``command.txt`` (the command line as it was typed);
 * :func:`worker_pool` — ``n`` worker processes of one BLAS thread each, forked where a fork
   is safe (:func:`start_method`), spawned elsewhere;
 * :func:`worker_count` — ``workers`` of a config, 0 meaning every core this process may use.
@@ -67,6 +67,7 @@ def open_run(
     settings: Mapping[str, Any],
     *,
     resume: bool,
+    force: bool = False,
     free: Collection[str] = (),
     saved_required: bool = True,
 ) -> RunFolder:
@@ -76,22 +77,34 @@ def open_run(
         out: the run folder (created if missing).
         results: the results file's name inside ``out``.
         settings: what ``config.yml`` records; on resume it is compared with the saved one.
-        resume: continue the results already there (else refuse to touch them).
+        resume: continue the results already there.
+        force: start over in a folder that holds files: its results file is deleted, every
+            other file is rewritten (what publishing to ``docs/results/...`` takes).
         free: settings a resume may change (they change no result: workers, the output
             folder, a larger budget).
         saved_required: on resume over existing results, a missing ``config.yml`` is an
             error (it cannot be checked); ``False`` skips the check instead.
 
     Raises:
-        InvalidConfigError: results exist and ``resume`` is false; or on resume the saved
-            settings differ in a field not in ``free`` (each named, old → new), or
+        InvalidConfigError: the folder holds any file and neither ``resume`` nor ``force``
+            is given (nothing shipped or computed is overwritten by default); or on resume
+            the saved settings differ in a field not in ``free`` (each named, old → new), or
             ``config.yml`` is missing while ``saved_required``.
     """
     out = Path(out)
     path = out / results
+    if resume and force:
+        raise InvalidConfigError("--resume continues a run, --force starts it over: not both")
+    held = sorted(p.name for p in out.iterdir()) if out.is_dir() else []
+    if held and not (resume or force):
+        shown = ", ".join(held[:4]) + (", …" if len(held) > 4 else "")
+        raise InvalidConfigError(
+            f"{out} already holds {len(held)} file(s) ({shown}): --resume continues that "
+            "run, --force starts it over in place, or choose another --out"
+        )
+    if force:
+        path.unlink(missing_ok=True)
     existing = has_results(path)
-    if existing and not resume:
-        raise InvalidConfigError(f"{path} exists: pass --resume to continue it, or another --out")
     saved = out / CONFIG_FILE
     if existing:
         if saved.exists():

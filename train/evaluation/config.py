@@ -153,6 +153,11 @@ class EvalConfig:
                 check_env_kwargs(
                     self.env_id, env_kwargs(self.control_hz, steps, self.start, text, extra=path)
                 )
+        if self.workers < 0 or self.bootstrap_resamples < 1:
+            raise InvalidConfigError(
+                f"workers must be >= 0 (0: the cores) and bootstrap_resamples >= 1, got "
+                f"{self.workers} and {self.bootstrap_resamples}"
+            )
         if self.backend not in ("process", "ray"):
             raise InvalidConfigError(f"backend must be 'process' or 'ray', got {self.backend!r}")
         methods = ["auto", *mp.get_all_start_methods()]  # no fork on Windows
@@ -173,6 +178,26 @@ class EvalConfig:
             require_extra("ray", "ray", "backend: ray")
         if self.video:
             require_extra("moviepy", "video", "video: true")
+
+    def base_gain_mismatches(self) -> list[str]:
+        """One line per trained residual entrant whose base controller, compared alone in
+        this sweep, runs at other gains here than the residual was trained over (its run's
+        ``base_gains``): an unfair pairing the sweep warns about (``ptrack study`` builds
+        its sweeps with the runs' own gains)."""
+        from train.evaluation.policies import run_config, sb3_files
+
+        lines = []
+        for c in self.controllers:
+            if not c.startswith(SB3_PREFIX):
+                continue
+            trained = run_config(sb3_files(c)[0])["config"]
+            base, gains = trained.get("residual", "none"), trained.get("base_gains", "default")
+            if base in self.controllers and gains != self.gains:
+                lines.append(
+                    f"{c} was trained over {base} at {gains} gains; {base} alone runs here at "
+                    f"{self.gains} gains (the residual keeps its own base's)"
+                )
+        return lines
 
     def settings(self) -> EpisodeSettings:
         return EpisodeSettings(

@@ -15,6 +15,14 @@ Its intervals are Bonferroni-adjusted: each is a (1 − α/K) interval, so with 
 chance that any "resolved" mark is wrong is ≤ α. Bonferroni is conservative: a difference
 marked unresolved may be real but is not shown by these seeds.
 
+**Conditions in which nothing happened.** A disturbed condition with an episode in which
+no disturbance acted (:func:`~train.evaluation.results.no_disturbance`: it did no work, or
+it is bit-identical to its undisturbed twin) is not compared: its rows keep their
+statistics but get no mark, it is left out of the comparisons (K), the verdict and the
+aggregate, and the verdict says so ("impulse 1: 3 of 5 episodes saw no disturbance (no
+work done): not compared"), so an undisturbed run is never reported as a result under
+that disturbance.
+
 Then: a paragraph written from those marks (:func:`verdict_paragraph`), an aggregate over
 conditions in rliable's manner (IQM with stratified-bootstrap intervals and performance
 profiles of a per-condition normalised score; :func:`stratified_bootstrap`, vectorised and
@@ -41,6 +49,7 @@ from train.common.statistics import (
     iqm_and_mean,
     paired_comparisons,
 )
+from train.evaluation.results import no_disturbance
 from train.plots.evaluation import aggregate_plot
 
 
@@ -66,6 +75,42 @@ def condition_table(df: pd.DataFrame, metric: str) -> pd.DataFrame:
 
 def _condition_name(dist: str, level: float) -> str:
     return "undisturbed" if dist == "none" else f"{dist} {level:g}"
+
+
+def idle_conditions(df: pd.DataFrame) -> dict[tuple[str, float], str]:
+    """Per disturbed condition (disturbance, level) with episodes that saw no disturbance
+    (:func:`~train.evaluation.results.no_disturbance`), what the report says of it: "3 of 5
+    episodes saw no disturbance (no work done)" (episodes: (seed, episode) pairs; one counts
+    if any controller's run of it saw none)."""
+    flagged = df[no_disturbance(df).to_numpy()]
+    out = {}
+    for (dist, level), g in flagged.groupby(["disturbance", "level"], sort=True):
+        cond = df[(df["disturbance"] == dist) & (df["level"] == level)]
+        idle = len(g[PAIR_KEY].drop_duplicates())
+        n = len(cond[PAIR_KEY].drop_duplicates())
+        out[(dist, float(level))] = f"{idle} of {n} episodes saw no disturbance (no work done)"
+    return out
+
+
+def _compared(frame: pd.DataFrame, idle: dict[tuple[str, float], str]) -> np.ndarray:
+    """Which rows of ``frame`` belong to a condition that is compared (not in ``idle``)."""
+    return np.array(
+        [
+            (d, float(lv)) not in idle
+            for d, lv in zip(frame["disturbance"], frame["level"], strict=True)
+        ],
+        dtype=bool,
+    )
+
+
+def idle_sentence(idle: dict[tuple[str, float], str]) -> str:
+    """The verdict's sentence on the conditions left out (empty if none)."""
+    if not idle:
+        return ""
+    notes = "; ".join(
+        f"{_condition_name(d, lv)}: {note}: not compared" for (d, lv), note in idle.items()
+    )
+    return f"{notes} (onsets after the episode's end? Rerun with longer episodes)."
 
 
 def verdict_paragraph(
@@ -274,11 +319,22 @@ def write_report(
 ) -> Path:
     """Write ``out/report.md`` (and ``comparisons.csv``, and with ``figures``
     ``aggregate.png``, drawn by ``draw`` if given: see :func:`aggregate`); return its path."""
+    idle = idle_conditions(df)
+    compared = df[_compared(df, idle)] if idle else df
     # First, so that a ``draw`` handing the figure to other processes overlaps the rest.
-    aggregate_section = aggregate(df, metric, out if figures else None, draw=draw)
-    comparisons = paired_comparisons(df, metric, reference, resamples=resamples)
+    aggregate_section = (
+        aggregate(compared, metric, out if figures else None, draw=draw)
+        if len(compared)
+        else "Aggregate scores: no condition is compared."
+    )
+    comparisons = paired_comparisons(compared, metric, reference, resamples=resamples)
     comparisons.to_csv(out / "comparisons.csv", index=False, float_format="%.17g")
     table = condition_table(df, metric)
+    verdict = (
+        verdict_paragraph(comparisons, table[_compared(table, idle)], reference, metric)
+        if len(compared)
+        else "No condition is compared."
+    )
     merged = table.merge(
         comparisons[["disturbance", "level", "controller", "diff", "ci_low", "ci_high", "mark"]],
         on=["disturbance", "level", "controller"],
@@ -290,7 +346,8 @@ def write_report(
         " ".join(
             p
             for p in (
-                verdict_paragraph(comparisons, table, reference, metric),
+                verdict,
+                idle_sentence(idle),
                 worst_case_sentence(worst_case),
             )
             if p
@@ -304,12 +361,14 @@ def write_report(
     ]
     for _, r in merged.iterrows():
         is_ref = r["controller"] == reference
-        diff = "reference" if is_ref else f"{r['diff']:+.3g}"
-        ci = "" if is_ref else f"[{r['ci_low']:+.3g}, {r['ci_high']:+.3g}]"
+        note = idle.get((r["disturbance"], float(r["level"])))
+        diff = "reference" if is_ref else "" if note else f"{r['diff']:+.3g}"
+        ci = "" if is_ref or note else f"[{r['ci_low']:+.3g}, {r['ci_high']:+.3g}]"
+        mark = "not compared" if note else "" if is_ref else r["mark"]
         lines.append(
             f"| {_condition_name(r['disturbance'], r['level'])} | {r['controller']} | {r['n']} "
             f"| {r['mean']:.3g} | {r['iqm']:.3g} | {r['cvar10']:.3g} | {r['failures']} | {diff} "
-            f"| {ci} | {'' if is_ref else r['mark']} |"
+            f"| {ci} | {mark} |"
         )
     k = int(comparisons["comparisons"].iloc[0]) if len(comparisons) else 0
     confidence = float(comparisons["confidence"].iloc[0]) if len(comparisons) else 1.0

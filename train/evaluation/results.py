@@ -11,6 +11,11 @@ mean (IQM) with 95% bootstrap confidence intervals (``scipy.stats.bootstrap``, p
 method, seeded), the failure rate, and the paired difference to a reference controller
 (per (seed, episode) pair, same disturbance schedule) with its interval. Failed episodes
 are counted in the failure rate and kept in every mean — never dropped.
+
+An episode of a disturbed condition in which no disturbance acted (:func:`no_disturbance`:
+its disturbance did no work, or it is bit-identical to its undisturbed twin) is counted in
+the summary's ``no_disturbance_n``; the headline table and the report flag its condition,
+and the report does not compare it.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ptrack_gym.disturbances import preset_does_work
 from ptrack_gym.errors import PtrackError
 from ptrack_gym.metrics import METRIC_NAMES
 from train.common.statistics import bootstrap_ci, iqm
@@ -116,6 +122,43 @@ def load_frame(path: Path) -> pd.DataFrame:
     return df.sort_values(list(KEY_COLUMNS), kind="stable").reset_index(drop=True)
 
 
+def no_disturbance(df: pd.DataFrame) -> pd.Series:
+    """Per row of an episodes table: whether the episode is one of a disturbed condition
+    (disturbance ≠ "none") in which no disturbance acted —
+
+    * its ``disturbance_work_j`` is exactly 0 and its preset acts through a torque or a
+      force (:func:`~ptrack_gym.disturbances.preset_does_work`): nothing pushed the arm; or
+    * its ``disturbance_work_j`` is 0 and every metric equals (NaN equal to NaN) that of
+      its undisturbed twin, the episode of the same controller, seed and episode under
+      "none" (same reset seed, same start): the only way to tell that a payload, whose
+      work the ledger does not count, never acted.
+
+    Such an episode (an onset after the episode's end, in results made before onsets were
+    checked against the episode) is an undisturbed run under a disturbed label. A table
+    without ``disturbance_work_j`` has none.
+    """
+    if "disturbance_work_j" not in df.columns:
+        return pd.Series(False, index=df.index, name="no_disturbance")
+    disturbed = (df["disturbance"] != "none").to_numpy()
+    idle = disturbed & (df["disturbance_work_j"].to_numpy(float) == 0.0)
+    does_work = {d: preset_does_work(str(d)) for d in df["disturbance"].unique()}
+    works = df["disturbance"].map(does_work).to_numpy(bool)
+    flag = idle & works
+    key = ["controller", "seed", "episode"]
+    metrics = [m for m in METRIC_NAMES if m in df.columns]
+    none = df[df["disturbance"] == "none"].drop_duplicates(key).set_index(key)[metrics]
+    check = idle & ~works
+    if check.any() and len(none):
+        rows = df.loc[check]
+        index = pd.MultiIndex.from_frame(rows[key])
+        twin = none.reindex(index).to_numpy(float)
+        own = rows[metrics].to_numpy(float)
+        same = ((twin == own) | (np.isnan(twin) & np.isnan(own))).all(axis=1)
+        same &= index.isin(none.index)
+        flag[np.flatnonzero(check)] = same
+    return pd.Series(flag, index=df.index, name="no_disturbance")
+
+
 def summarize(
     df: pd.DataFrame,
     metric: str = "path_dist_rms",
@@ -125,6 +168,7 @@ def summarize(
 ) -> pd.DataFrame:
     """One row per controller × disturbance × level (see the module docstring)."""
     out = []
+    df = df.assign(no_disturbance=no_disturbance(df))
     groups = df.groupby(["controller", "disturbance", "level"], sort=True)
     ref_rows = (
         df[df["controller"] == reference].set_index(["disturbance", "level", "seed", "episode"])
@@ -167,6 +211,7 @@ def summarize(
                     "diff_ci_high": hi,
                 }
             )
+        row["no_disturbance_n"] = int(g["no_disturbance"].sum())
         out.append(row)
     return pd.DataFrame(out)
 
@@ -215,6 +260,7 @@ def headline_table(summary: pd.DataFrame, metric: str) -> str:
     )
     controllers = list(dict.fromkeys(df["controller"]))
     rows = sorted(table.index, key=lambda c: c != "undisturbed")  # stable: the rest in order
+    idle = _idle_notes(df)
     lines = [
         "| condition | " + " | ".join(label(c) for c in controllers) + " |",
         "|---|" + "---:|" * len(controllers),
@@ -225,5 +271,25 @@ def headline_table(summary: pd.DataFrame, metric: str) -> str:
             "" if pd.isna(row[c]) else (f"**{row[c]:.2e}**" if row[c] == best else f"{row[c]:.2e}")
             for c in controllers
         ]
-        lines.append(f"| {condition} | " + " | ".join(cells) + " |")
+        mark = " †" if condition in idle else ""
+        lines.append(f"| {condition}{mark} | " + " | ".join(cells) + " |")
+    if idle:
+        lines += ["", *(f"† {condition}: {note}" for condition, note in idle.items())]
     return "\n".join(lines)
+
+
+def _idle_notes(summary: pd.DataFrame) -> dict[str, str]:
+    """The conditions of a summary in which some episodes saw no disturbance (its
+    ``no_disturbance_n``; none for a summary made before that column), each with a note:
+    ``"3 of 5 episodes saw no disturbance (no work done): not compared"``."""
+    if "no_disturbance_n" not in summary.columns:
+        return {}
+    out = {}
+    for (dist, level), g in summary.groupby(["disturbance", "level"], sort=True):
+        idle = int(g["no_disturbance_n"].max())
+        if dist != "none" and idle > 0:
+            n = int(g["n"].max()) if "n" in g.columns else idle
+            out[f"{dist} {float(level):g}"] = (
+                f"{idle} of {n} episodes saw no disturbance (no work done): not compared"
+            )
+    return out

@@ -11,6 +11,7 @@ only :mod:`train.evaluation.episode` and what an episode needs.
 from __future__ import annotations
 
 import dataclasses
+import sys
 from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import (
@@ -131,12 +132,17 @@ def run_sweep(
     resume: bool = False,
     progress: bool = True,
     show: bool = True,
+    force: bool = False,
 ) -> Path:
     """Run (or resume) the sweep of ``cfg``; return the output folder. ``show`` prints
-    the summary table."""
+    the headline table; ``force`` starts over in a folder that holds files
+    (:func:`train.common.runs.open_run`)."""
+    for line in cfg.base_gain_mismatches():
+        print(f"warning: {line}", file=sys.stderr, flush=True)
     run = open_run(
-        cfg.out, "episodes.csv", dataclasses.asdict(cfg), resume=resume, free=RUN_ONLY_FIELDS
-    )
+        cfg.out, "episodes.csv", dataclasses.asdict(cfg), resume=resume, force=force,
+        free=RUN_ONLY_FIELDS,
+    )  # fmt: skip
     out, episodes = run.out, run.results
     finished = done_keys(read_episodes(episodes))  # validates the file before anything runs
     tasks = [t for t in cfg.tasks() if t.key() not in finished]

@@ -3,7 +3,8 @@ learning rate, a behaviour-cloning pull toward the base, a frozen-actor warm-up.
 
 Each function acts on SB3's torch actor (SAC, TD3; PPO where noted) and is what a
 :class:`~train.rl.config.TrainConfig` field turns on (``zero_init_residual``,
-``init_log_std``, ``actor_lr_scale``, ``actor_bc_weight``, ``critic_warmup_steps``).
+``init_log_std``, ``actor_lr_scale``, ``actor_bc_weight``, ``critic_warmup_steps``,
+``freeze_actor``).
 """
 
 from __future__ import annotations
@@ -123,14 +124,15 @@ def add_actor_bc(model: BaseAlgorithm, weight: float) -> None:
 
 class ActorWarmupCallback(BaseCallback):
     """Freeze the actor (its parameters get no gradient, so no update) until the model
-    has taken ``until_steps`` env steps, while the critic trains on what the frozen actor
-    does. In SB3's SAC and TD3 the critic is updated before the actor and the actor loss
-    reaches the actor only through its parameters, so a frozen actor leaves the critic's
-    and the entropy coefficient's updates as they are."""
+    has taken ``until_steps`` env steps — None: for the whole of ``learn``
+    (``freeze_actor``) —, while the critic trains on what the frozen actor does. In SB3's
+    SAC and TD3 the critic is updated before the actor and the actor loss reaches the
+    actor only through its parameters, so a frozen actor leaves the critic's and the
+    entropy coefficient's updates as they are."""
 
-    def __init__(self, until_steps: int) -> None:
+    def __init__(self, until_steps: int | None) -> None:
         super().__init__()
-        self.until_steps = int(until_steps)
+        self.until_steps = None if until_steps is None else int(until_steps)
         self.frozen = False
 
     def _set(self, frozen: bool) -> None:
@@ -139,11 +141,11 @@ class ActorWarmupCallback(BaseCallback):
         self.frozen = frozen
 
     def _on_training_start(self) -> None:
-        if self.num_timesteps < self.until_steps:
+        if self.until_steps is None or self.num_timesteps < self.until_steps:
             self._set(True)
 
     def _on_step(self) -> bool:
-        if self.frozen and self.num_timesteps >= self.until_steps:
+        if self.frozen and self.until_steps is not None and self.num_timesteps >= self.until_steps:
             self._set(False)
         return True
 

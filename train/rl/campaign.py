@@ -115,6 +115,8 @@ def _train_one(cfg: TrainConfig) -> tuple[str, str | None]:
     from train.rl.config import to_argv
     from train.rl.run import run, sigterm_as_interrupt
 
+    if cfg.progress_bar is None:  # the workers share one terminal: no bars unless asked
+        cfg = replace(cfg, progress_bar=False)
     try:
         with sigterm_as_interrupt():  # Pool.terminate's SIGTERM: the run saves where it got to
             run(cfg, argv=to_argv(cfg))

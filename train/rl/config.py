@@ -3,21 +3,23 @@
 :func:`validate` checks every field and resolves the hyperparameters (``train/hyperparams/
 <algo>.yml`` in rl-baselines3-zoo's format, then ``hyperparams``, then ``overrides``)
 without touching a file or building an env: every configuration error — unknown algorithm,
-env id, residual base, disturbance, env argument (checked by the env's own validator) or
-hyperparameter — raises :class:`TrainConfigError` before anything runs.
+env id, residual base, disturbance, env argument (checked by the env's own validator),
+hyperparameter, a number out of its domain, settings that contradict each other (a
+warm-up that outlasts the run) — raises :class:`TrainConfigError` before anything runs.
+
+``--resume`` needs only ``--out``: :func:`from_args` takes every field the command line
+did not give from the run's ``config.yml`` (:func:`resume_config`), and :func:`validate`
+names every given value that differs from the run's at once.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
-
-import yaml
 
 from agents.hold import check_decision_every
 from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
@@ -45,6 +47,7 @@ from train.evaluation.policies import ALGOS, BACKENDS
 from train.rl.checkpoints import (
     latest_checkpoint,
 )
+from train.rl.domains import check_agreement, check_numbers
 from train.rl.hyperparameters import (
     TrainConfigError,
     load_hyperparams,
@@ -53,6 +56,11 @@ from train.rl.hyperparameters import (
 )
 from train.rl.imitation import (
     DaggerSpec,
+)
+from train.rl.resume import (
+    check_resume_compatible,
+    given_fields,
+    resume_config,
 )
 
 #: ``--residual`` choices: "none" (pure RL), a base controller name, or "network" (a saved
@@ -95,8 +103,8 @@ class TrainConfig:
     eval_disturbance: str | None = None
     """Disturbance of the evaluation env, same syntax; None → the training disturbance."""
     steps: int | None = None
-    """Environment steps to train in this invocation (added to a resumed count); None →
-    the hyperparameter file's ``n_timesteps``."""
+    """Environment steps to train in this invocation (added to a resumed count, and never
+    taken from the run on ``--resume``); None → the hyperparameter file's ``n_timesteps``."""
     seed: int = 0
     """Seed of the model, the training envs (seed … seed + n_envs − 1), eval env seed + 1000."""
     hyperparams: str | None = None
@@ -114,11 +122,14 @@ class TrainConfig:
     checkpoint_freq: int = 50_000
     """Checkpoint every this many env steps (summed over envs); 0: only the final one."""
     resume: bool = False
-    """Continue from the newest checkpoint in ``out`` (model, replay buffer, VecNormalize)."""
+    """Continue from the newest checkpoint in ``out`` (model, replay buffer, VecNormalize);
+    every field not given is the run's (its ``config.yml``), and a given one that changes
+    what the run is (env, reward, residual, …: ``train.rl.resume.RESUME_KEYS``) is refused."""
     zero_init_residual: bool = False
     """Zero the actor's output layer (SAC/TD3 mu, PPO action_net): the policy starts at a = 0."""
-    progress_bar: bool = False
-    """Show SB3's progress bar (tqdm + rich)."""
+    progress_bar: bool | None = None
+    """Show SB3's progress bar (tqdm + rich); None: when standard output is a terminal
+    (``--progress``/``--no-progress`` say it too)."""
     tensorboard: bool = False
     """Log to TensorBoard under ``out/tb/from_<steps>`` (progress.csv is written there always)."""
     control_hz: float | None = None
@@ -156,7 +167,12 @@ class TrainConfig:
     critic_warmup_steps: int = 0
     """Off-policy only: the actor is frozen (its parameters get no update) for this many
     steps after ``learning_starts`` while the critic learns from what it does; with
-    ``--zero-init-residual`` that is the base controller plus exploration noise."""
+    ``--zero-init-residual`` that is the base controller plus exploration noise. It must end
+    before the run does (``learning_starts`` + it < the run's last step)."""
+    freeze_actor: bool = False
+    """Off-policy only: the actor gets no update in the whole run (the critic still
+    learns), so the policy stays as initialised — with ``--zero-init-residual`` the base
+    and its control prior: a prior alone through the training harness, on purpose."""
     actor_lr_scale: float = 1.0
     """SAC/TD3 only: the actor's learning rate is this times the schedule's (the critic's
     and the entropy coefficient's keep it): with Adam, how far the actor's output moves per
@@ -220,12 +236,14 @@ def validate(cfg: TrainConfig) -> Resolved:
     """Check every field and resolve the hyperparameters; touches no file or env.
 
     Raises:
-        TrainConfigError: the first problem found, with the valid choices.
+        TrainConfigError: the first problem found, with the valid choices (every number
+            out of its domain, and every ``--resume`` mismatch, at once).
     """
     if cfg.algo not in ALGOS:
         raise TrainConfigError(f"unknown algo {cfg.algo!r}; known: {sorted(ALGOS)}")
     if cfg.backend not in BACKENDS:
         raise TrainConfigError(f"unknown backend {cfg.backend!r}; known: {list(BACKENDS)}")
+    check_numbers(dataclasses.asdict(cfg))
     if cfg.backend == "sbx":
         torch_only = [
             name
@@ -233,6 +251,7 @@ def validate(cfg: TrainConfig) -> Resolved:
                 ("zero_init_residual", cfg.zero_init_residual),
                 ("init_log_std", cfg.init_log_std is not None),
                 ("critic_warmup_steps", cfg.critic_warmup_steps != 0),
+                ("freeze_actor", cfg.freeze_actor),
                 ("actor_lr_scale", cfg.actor_lr_scale != 1.0),
                 ("actor_bc_weight", cfg.actor_bc_weight != 0.0),
                 ("imitate", cfg.imitate is not None),
@@ -248,30 +267,21 @@ def validate(cfg: TrainConfig) -> Resolved:
         raise TrainConfigError(
             f"unknown residual base {cfg.residual!r}; known: {list(RESIDUAL_CHOICES)}"
         )
-    if not (math.isfinite(cfg.scale_fraction) and cfg.scale_fraction >= 0):
-        raise TrainConfigError(f"scale_fraction must be >= 0, got {cfg.scale_fraction}")
-    if not (math.isfinite(cfg.episode_s) and cfg.episode_s > 0):
-        raise TrainConfigError(f"episode_s must be positive, got {cfg.episode_s}")
     residual_kwargs = residual_wrapper_kwargs(dataclasses.asdict(cfg))
     if cfg.residual == "none":
         if residual_kwargs != WRAPPER_DEFAULTS:
             raise TrainConfigError(f"{', '.join(WRAPPER_DEFAULTS)} need a residual base")
         residual_kwargs = {}
-    if cfg.critic_warmup_steps < 0:
-        raise TrainConfigError(f"critic_warmup_steps must be >= 0, got {cfg.critic_warmup_steps}")
-    if cfg.critic_warmup_steps and cfg.algo == "ppo":
-        raise TrainConfigError("critic_warmup_steps needs an off-policy algorithm (sac, td3)")
-    if not (math.isfinite(cfg.actor_lr_scale) and 0 < cfg.actor_lr_scale <= 1):
-        raise TrainConfigError(f"actor_lr_scale must be in (0, 1], got {cfg.actor_lr_scale}")
-    if cfg.actor_lr_scale != 1.0 and cfg.algo == "ppo":
-        raise TrainConfigError("actor_lr_scale needs an actor optimizer (sac, td3)")
-    if not (math.isfinite(cfg.actor_bc_weight) and cfg.actor_bc_weight >= 0):
-        raise TrainConfigError(f"actor_bc_weight must be >= 0, got {cfg.actor_bc_weight}")
-    if cfg.actor_bc_weight and cfg.algo == "ppo":
-        raise TrainConfigError("actor_bc_weight needs an actor optimizer (sac, td3)")
+    if cfg.algo == "ppo":
+        for name in ("critic_warmup_steps", "freeze_actor"):
+            if getattr(cfg, name):
+                raise TrainConfigError(f"{name} needs an off-policy algorithm (sac, td3)")
+        for name in ("actor_lr_scale", "actor_bc_weight"):
+            if getattr(cfg, name) != _FIELD_DEFAULTS[name]:
+                raise TrainConfigError(f"{name} needs an actor optimizer (sac, td3)")
     _validate_imitation(cfg)
-    if cfg.init_log_std is not None and (cfg.algo != "sac" or not math.isfinite(cfg.init_log_std)):
-        raise TrainConfigError("init_log_std is a finite number, for sac only")
+    if cfg.init_log_std is not None and cfg.algo != "sac":
+        raise TrainConfigError("init_log_std is for sac only")
     env_extra: dict[str, Any] = {"reward": cfg.reward}
     if cfg.kernel_weights is not None:
         env_extra["kernel_weights"] = tuple(cfg.kernel_weights)
@@ -281,7 +291,11 @@ def validate(cfg: TrainConfig) -> Resolved:
         check_base_gains(cfg.base_gains)
         profile = profile_for_env_id(cfg.env_id)
         control_hz = profile.default_control_hz if cfg.control_hz is None else cfg.control_hz
-        max_episode_steps = max(1, round(cfg.episode_s * control_hz))
+        max_episode_steps = round(cfg.episode_s * control_hz)
+        if max_episode_steps < 1:
+            raise TrainConfigError(
+                f"episode_s={cfg.episode_s} at {control_hz} Hz is less than one control step"
+            )
         for text in (cfg.disturbance, cfg.eval_disturbance or cfg.disturbance):
             check_env_kwargs(
                 cfg.env_id,
@@ -300,25 +314,18 @@ def validate(cfg: TrainConfig) -> Resolved:
             tuned_rates(profile.name, cfg.imitate)  # likewise, for the expert
     except InvalidConfigError as exc:
         raise TrainConfigError(str(exc)) from None
-    for name in ("eval_freq", "checkpoint_freq"):
-        if getattr(cfg, name) < 0:
-            raise TrainConfigError(f"{name} must be >= 0")
-    if cfg.eval_episodes < 1 or cfg.torch_threads < 1:
-        raise TrainConfigError("eval_episodes and torch_threads must be >= 1")
     raw = load_hyperparams(cfg.algo, cfg.env_id, cfg.hyperparams, cfg.overrides)
     algo_kwargs, special = resolve_hyperparams(cfg.algo, raw, cfg.backend)
     if cfg.imitate is not None and int(algo_kwargs.get("learning_starts", 100)) != 0:
         raise TrainConfigError(
-            "imitate needs learning_starts=0 (--set learning_starts=0): SB3 acts uniformly at "
+            "imitate needs learning_starts=0 (--hp learning_starts=0): SB3 acts uniformly at "
             "random until learning_starts, which throws the arm off the path the imitation "
             "tracks and fills the replay buffer with it"
         )
     steps = cfg.steps if cfg.steps is not None else special.get("n_timesteps")
-    if steps is None or int(steps) < 1:
-        raise TrainConfigError(f"steps must be >= 1 (or n_timesteps in the YAML), got {steps}")
+    if steps is None:
+        raise TrainConfigError("steps: give --steps (or n_timesteps in the hyperparameter file)")
     n_envs = int(cfg.n_envs if cfg.n_envs is not None else special.get("n_envs", 1))
-    if n_envs < 1:
-        raise TrainConfigError(f"n_envs must be >= 1, got {n_envs}")
     normalize = special.get("normalize", False)
     if cfg.vec_normalize is not None:
         normalize = (normalize or {}) if cfg.vec_normalize else False
@@ -327,12 +334,27 @@ def validate(cfg: TrainConfig) -> Resolved:
         normalize_kwargs = dict(normalize) if isinstance(normalize, dict) else {}
         normalize_kwargs.setdefault("gamma", float(algo_kwargs.get("gamma", 0.99)))
     run_dir = Path(cfg.out)
+    done = 0  # the steps the run has taken before this invocation
     if cfg.resume:
-        if latest_checkpoint(run_dir) is None:
+        found = latest_checkpoint(run_dir)
+        if found is None:
             raise TrainConfigError(f"--resume: no checkpoint in {run_dir / 'checkpoints'}")
-        _check_resume_compatible(cfg, run_dir)
+        done = found[0]
+        derived = {"control_hz": float(control_hz), "n_envs": n_envs,
+                   "vec_normalize": normalize_kwargs is not None}  # fmt: skip
+        check_resume_compatible(cfg, derived, run_dir)
     elif (run_dir / "config.yml").exists():
-        raise TrainConfigError(f"{run_dir} already holds a run; use --resume or a new --out")
+        found = latest_checkpoint(run_dir)
+        if found is None:
+            raise TrainConfigError(
+                f"{run_dir} holds a run that stopped before its first checkpoint: "
+                "delete the folder, or use a new --out"
+            )
+        raise TrainConfigError(
+            f"{run_dir} already holds a run ({found[0]} steps): use --resume to continue it, "
+            "or a new --out"
+        )
+    check_agreement(dataclasses.asdict(cfg), algo_kwargs, n_envs, done, int(steps))
     return Resolved(
         cfg,
         profile.name,
@@ -360,8 +382,6 @@ def _validate_imitation(cfg: TrainConfig) -> None:
         raise TrainConfigError(str(exc)) from None
     if cfg.imitate is not None and cfg.decision_every != 1:
         raise TrainConfigError("imitate labels every control step: keep decision_every 1")
-    if not (math.isfinite(cfg.demo_bc_weight) and cfg.demo_bc_weight >= 0):
-        raise TrainConfigError(f"demo_bc_weight must be >= 0, got {cfg.demo_bc_weight}")
     if cfg.imitate is None:
         if cfg.demo_bc_weight:
             raise TrainConfigError("demo_bc_weight needs imitate (the expert's demonstrations)")
@@ -381,10 +401,6 @@ def _validate_imitation(cfg: TrainConfig) -> None:
             "imitate needs init_log_std: the fit trains the actor's mean only, so its "
             "exploration std would be whatever the shared layers make of the log-std head"
         )
-    if cfg.imitate_rounds < 0 or cfg.imitate_steps < 1 or cfg.imitate_round_steps < 1:
-        raise TrainConfigError("imitate_rounds must be >= 0, imitate_(round_)steps >= 1")
-    if not (math.isfinite(cfg.imitate_noise) and cfg.imitate_noise >= 0):
-        raise TrainConfigError(f"imitate_noise must be >= 0, got {cfg.imitate_noise}")
 
 
 def dagger_spec(cfg: TrainConfig) -> DaggerSpec:
@@ -408,24 +424,6 @@ _FIELD_DEFAULTS: dict[str, Any] = {
 }
 
 
-def _check_resume_compatible(cfg: TrainConfig, run_dir: Path) -> None:
-    path = run_dir / "config.yml"
-    if not path.exists():
-        return
-    saved = yaml.safe_load(path.read_text()).get("config", {})
-    for key in ("algo", "backend", "env_id", "residual", "scale_fraction", "scale_accel_rad_s2",
-                "base_gains", "base_model", "decision_every", "start", "episode_s",
-                "reward_weights", "reward", "kernel_weights",
-                "max_path_distance", "action_penalty", "gate_rad",
-                "gate_deadband_rad", "prior_gain_per_rad", "imitate", "imitate_gains",
-                "imitate_rounds", "imitate_steps", "imitate_round_steps", "imitate_noise",
-                "demo_bc_weight"):  # fmt: skip
-        mine = getattr(cfg, key)
-        theirs = saved.get(key, _FIELD_DEFAULTS.get(key, mine))  # a key the run predates
-        if theirs != mine:
-            raise TrainConfigError(f"--resume: {key}={mine!r} differs from the run's {theirs!r}")
-
-
 # -- command line ----------------------------------------------------------------------
 #: TrainConfig fields with no flag of their own: ``overrides`` is ``--hp key=value``.
 NO_FLAG = ("overrides",)
@@ -435,7 +433,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """``ptrack train``'s arguments: ``--config``, ``--set``, a flag per
     :class:`TrainConfig` field (``--env`` for ``env_id``) and ``--hp`` for the SB3
     hyperparameters (:mod:`train.common.arguments`)."""
-    add_config_arguments(parser, TrainConfig, exclude=NO_FLAG, flags={"env_id": "--env"})
+    add_config_arguments(
+        parser,
+        TrainConfig,
+        exclude=NO_FLAG,
+        flags={"env_id": "--env", "progress_bar": "--progress"},
+    )
     parser.add_argument(
         "--hp", action="append", default=[], metavar="KEY=VALUE",
         help="an SB3 hyperparameter over the YAML's (repeatable): the value read as YAML; "
@@ -445,10 +448,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def from_args(args: argparse.Namespace) -> TrainConfig:
     """The config of parsed ``ptrack train`` arguments: the fields, with ``--hp`` merged
-    over the config file's ``overrides``."""
+    over the config file's ``overrides``; with ``--resume``, every field not given is the
+    run's (:func:`resume_config`)."""
     cfg = config_from_args(TrainConfig, args)
     cfg.overrides = {**cfg.overrides, **parse_set(args.hp)}
-    return cfg
+    return resume_config(cfg, given_fields(args, TrainConfig))
 
 
 def parse_args(argv: Sequence[str] | None = None) -> TrainConfig:

@@ -187,15 +187,18 @@ def resolve_hyperparams(
         if isinstance(value, str):
             if not value.startswith("lin_"):
                 raise TrainConfigError(f"{key}: a number or 'lin_<start>', got {value!r}")
-            try:
-                kwargs[key] = LinearSchedule(float(value[4:]), 0.0, 1.0)
-            except ValueError:
-                raise TrainConfigError(f"{key}: bad linear schedule {value!r}") from None
+            if not _float_above_zero(value[4:]) or not np.isfinite(float(value[4:])):
+                raise TrainConfigError(f"{key}: bad linear schedule {value!r} (start > 0)")
+            kwargs[key] = LinearSchedule(float(value[4:]), 0.0, 1.0)
     if isinstance(kwargs.get("train_freq"), list):
         kwargs["train_freq"] = tuple(kwargs["train_freq"])
     if "noise_type" in special:
         if algo == "ppo":
             raise TrainConfigError("noise_type / noise_std apply to sac and td3 only")
+        if special["noise_type"] not in NOISE_TYPES:
+            raise TrainConfigError(
+                f"noise_type must be one of {list(NOISE_TYPES)}, got {special['noise_type']!r}"
+            )
         special.setdefault("noise_std", 0.1)
     if isinstance(special.get("normalize"), str):
         special["normalize"] = parse_python_literal(special["normalize"])
@@ -207,7 +210,84 @@ def resolve_hyperparams(
         bad = sorted(set(normalize) - known)
         if bad:
             raise TrainConfigError(f"unknown VecNormalize option(s) {bad}; known: {sorted(known)}")
+    check_domains({**kwargs, **special})
     return kwargs, special
+
+
+def _integer(v: Any) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
+def _real(v: Any) -> bool:
+    return isinstance(v, (int, float, np.number)) and not isinstance(v, bool) and np.isfinite(v)
+
+
+def _train_freq(v: Any) -> bool:
+    if isinstance(v, tuple) and len(v) == 2:
+        return _integer(v[0]) and v[0] >= 1 and v[1] in ("step", "episode")
+    return _integer(v) and v >= 1
+
+
+def _ent_coef(v: Any) -> bool:
+    if isinstance(v, str):
+        head, _, tail = v.partition("_")
+        return head == "auto" and (not tail or _float_above_zero(tail))
+    return _real(v) and v >= 0
+
+
+def _float_above_zero(text: str) -> bool:
+    try:
+        return float(text) > 0
+    except ValueError:
+        return False
+
+
+#: The domain of each numeric hyperparameter (a value that is not a number fails too): a
+#: value outside it would fail in SB3 — or train nonsense — only after the run folder is
+#: written. A schedule (``lin_<x>``, already a callable here) is checked where it is parsed.
+DOMAINS: dict[str, tuple[Any, str]] = {
+    "learning_rate": (lambda v: _real(v) and v > 0, "a number > 0 or 'lin_<start>'"),
+    "buffer_size": (lambda v: _integer(v) and v >= 1, "an integer >= 1"),
+    "learning_starts": (lambda v: _integer(v) and v >= 0, "an integer >= 0"),
+    "batch_size": (lambda v: _integer(v) and v >= 1, "an integer >= 1"),
+    "tau": (lambda v: _real(v) and 0 < v <= 1, "a number in (0, 1]"),
+    "gamma": (lambda v: _real(v) and 0 <= v <= 1, "a number in [0, 1]"),
+    "train_freq": (_train_freq, "an integer >= 1 or [n, 'step' | 'episode']"),
+    "gradient_steps": (lambda v: _integer(v) and (v >= 1 or v == -1), "an integer >= 1, or -1"),
+    "n_steps": (lambda v: _integer(v) and v >= 1, "an integer >= 1"),
+    "n_epochs": (lambda v: _integer(v) and v >= 1, "an integer >= 1"),
+    "gae_lambda": (lambda v: _real(v) and 0 <= v <= 1, "a number in [0, 1]"),
+    "clip_range": (lambda v: _real(v) and v > 0, "a number > 0 or 'lin_<start>'"),
+    "clip_range_vf": (lambda v: v is None or (_real(v) and v > 0), "null or a number > 0"),
+    "ent_coef": (_ent_coef, "a number >= 0, 'auto' or 'auto_<initial value > 0>'"),
+    "vf_coef": (lambda v: _real(v) and v >= 0, "a number >= 0"),
+    "max_grad_norm": (lambda v: _real(v) and v > 0, "a number > 0"),
+    "target_update_interval": (lambda v: _integer(v) and v >= 1, "an integer >= 1"),
+    "policy_delay": (lambda v: _integer(v) and v >= 1, "an integer >= 1"),
+    "target_policy_noise": (lambda v: _real(v) and v >= 0, "a number >= 0"),
+    "target_noise_clip": (lambda v: _real(v) and v >= 0, "a number >= 0"),
+    "n_timesteps": (lambda v: _integer(v) and v >= 1, "an integer >= 1"),
+    "n_envs": (lambda v: _integer(v) and v >= 1, "an integer >= 1"),
+    "noise_std": (lambda v: _real(v) and v >= 0, "a number >= 0"),
+}
+
+#: ``noise_type`` values (rl-zoo3's names).
+NOISE_TYPES = ("normal", "ornstein-uhlenbeck")
+
+
+def check_domains(hyperparams: dict[str, Any]) -> None:
+    """Check every numeric hyperparameter of :data:`DOMAINS` in ``hyperparams``.
+
+    Raises:
+        TrainConfigError: naming every value out of its domain at once.
+    """
+    bad = [
+        f"{key}={value!r} (must be {what})"
+        for key, (ok, what) in DOMAINS.items()
+        if key in hyperparams and not callable(value := hyperparams[key]) and not ok(value)
+    ]
+    if bad:
+        raise TrainConfigError(f"bad hyperparameter value(s): {'; '.join(bad)}")
 
 
 def action_noise(special: dict[str, Any], n_actions: int) -> Any:
@@ -219,4 +299,11 @@ def action_noise(special: dict[str, Any], n_actions: int) -> Any:
         return NormalActionNoise(np.zeros(n_actions), std)
     if kind == "ornstein-uhlenbeck":
         return OrnsteinUhlenbeckActionNoise(np.zeros(n_actions), std)
-    raise TrainConfigError(f"noise_type must be 'normal' or 'ornstein-uhlenbeck', got {kind!r}")
+    raise TrainConfigError(f"noise_type must be one of {list(NOISE_TYPES)}, got {kind!r}")
+
+
+def hyperparameter_default(algo: str, backend: str, key: str) -> Any:
+    """The default of constructor argument ``key`` of ``algo`` in ``backend`` (None if the
+    constructor has no such argument)."""
+    params = inspect.signature(algo_class(algo, backend).__init__).parameters
+    return params[key].default if key in params else None

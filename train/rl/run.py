@@ -8,10 +8,11 @@ Run from the repository root::
 Everything one run needs is one :class:`TrainConfig`; the CLI fills it (``--help``). The
 hyperparameters come from ``train/hyperparams/<algo>.yml`` (rl-baselines3-zoo format, see
 :mod:`train.rl.hyperparameters` and ``docs/rl.md``), then ``--hyperparams FILE``, then
-``--set key=value``. Every configuration error — unknown algorithm, env id, residual
-base, disturbance, env argument (checked by the env's own validator) or hyperparameter —
-raises :class:`TrainConfigError` (a ``ValueError``) or an argparse error *before* any env
-is built or any file written. Envs come from :func:`train.evaluation.envs.build_env`, checkpoints
+``--hp key=value``. Every configuration error — unknown algorithm, env id, residual
+base, disturbance, env argument (checked by the env's own validator), hyperparameter, a
+number out of its domain or settings that contradict each other — raises
+:class:`TrainConfigError` (a ``ValueError``) or an argparse error *before* any env is built
+or any file written. Envs come from :func:`train.evaluation.envs.build_env`, checkpoints
 from :mod:`train.rl.checkpoints`.
 
 The run folder ``--out`` receives ``config.yml`` (the resolved config and
@@ -23,7 +24,10 @@ for the newest checkpoint only, the replay buffer (the final state is always sav
 too, so ``--resume`` can continue any finished or interrupted run). An interrupted run —
 Ctrl-C, or SIGTERM — saves ``model.zip`` and a checkpoint at the step it reached before it
 exits (nothing trained is lost, and ``model.zip`` is never older than the newest
-checkpoint), then re-raises ``KeyboardInterrupt``.
+checkpoint), then re-raises ``KeyboardInterrupt``. A run that fails before its first step
+(and saved no checkpoint) takes back what it wrote, so the same command can start over.
+SB3's progress bar is on when standard output is a terminal (``--progress-bar``,
+``--no-progress`` say otherwise).
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ import dataclasses
 import json
 import platform
 import shlex
+import shutil
 import signal
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -223,102 +228,184 @@ def write_run_files(res: Resolved, run_dir: Path, argv: Sequence[str] | None) ->
 def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
     """Validate ``cfg``, build the envs and the model (or resume), train, save.
 
+    A run that fails before its first training step — building the envs or the model,
+    loading the checkpoint, the imitation, SB3's own set-up — takes back what it wrote
+    (:class:`RunFiles`), unless it saved a checkpoint (an interruption does): the same
+    command can then start over, or resume as before.
+
     Raises:
         TrainConfigError: a bad config, before any env is built or any file written.
     """
     res = validate(cfg)
     run_dir = Path(cfg.out)
     torch.set_num_threads(cfg.torch_threads)
-    write_run_files(res, run_dir, argv)
-    start_steps = 0 if not cfg.resume else latest_checkpoint(run_dir)[0]  # type: ignore[index]
-    train_env, eval_env = make_envs(res, run_dir, session=f"from_{start_steps}")
+    files = RunFiles(run_dir)
+    started: list[BaseAlgorithm] = []  # the model, once built
     try:
-        if cfg.resume:
-            model, train_env = load_checkpoint(
-                algo_class(cfg.algo, cfg.backend), run_dir, train_env, eval_env,
-                res.normalize_kwargs is not None, cfg.device, cfg.tensorboard,
-            )  # fmt: skip
-            if cfg.imitate is not None and isinstance(train_env, VecNormalize):
-                train_env.training = False  # the imitation's statistics stay frozen
-        else:
-            kwargs = dict(res.algo_kwargs)
-            noise = action_noise(res.special, int(np.prod(train_env.action_space.shape)))
-            if noise is not None:
-                kwargs["action_noise"] = noise
-            model = algo_class(cfg.algo, cfg.backend)(
-                env=train_env,
-                tensorboard_log=str(run_dir / "tb") if cfg.tensorboard else None,
+        write_run_files(res, run_dir, argv)
+        model = _train(res, run_dir, started)
+    except BaseException:
+        stepped = bool(started) and started[0].num_timesteps > files.steps
+        if not stepped and latest_checkpoint(run_dir) == files.checkpoint:
+            files.take_back()
+        raise
+    return TrainResult(model, run_dir, model.num_timesteps)
+
+
+class RunFiles:
+    """What a run folder held before an invocation wrote to it: its paths, the text of its
+    run files (config.yml, command.txt, versions.json) and its newest checkpoint.
+    :meth:`take_back` removes every path added since and restores the run files (a folder
+    it created goes whole), so a failed fresh start leaves nothing behind and a failed
+    resume leaves the run as it was."""
+
+    RUN_FILES = ("config.yml", "command.txt", "versions.json")
+
+    def __init__(self, run_dir: Path) -> None:
+        self.run_dir = run_dir
+        self.created = run_dir  # the outermost folder that does not exist yet
+        while not self.created.parent.exists():
+            self.created = self.created.parent
+        self.existed = run_dir.exists()
+        self.paths = set(run_dir.rglob("*")) if self.existed else set()
+        self.texts = {n: (run_dir / n).read_bytes() for n in self.RUN_FILES
+                      if (run_dir / n).is_file()}  # fmt: skip
+        self.checkpoint = latest_checkpoint(run_dir)
+        self.steps = self.checkpoint[0] if self.checkpoint else 0
+
+    def take_back(self) -> None:
+        """Undo what was written since this snapshot."""
+        if not self.existed:
+            shutil.rmtree(self.created, ignore_errors=True)
+            return
+        for path in sorted(set(self.run_dir.rglob("*")) - self.paths, reverse=True):
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+        for name, text in self.texts.items():
+            (self.run_dir / name).write_bytes(text)
+
+
+def progress_bar_on(cfg: TrainConfig) -> bool:
+    """``cfg.progress_bar``, or with None whether standard output is a terminal (and SB3's
+    progress bar can be drawn: tqdm and rich, the ``train`` extra)."""
+    if cfg.progress_bar is not None:
+        return cfg.progress_bar
+    if not sys.stdout.isatty():
+        return False
+    try:
+        import rich  # noqa: F401
+        import tqdm  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _model(res: Resolved, run_dir: Path, train_env: VecEnv, eval_env: VecEnv) -> BaseAlgorithm:
+    """A new model (its actor set up as ``res.cfg`` says, imitation included), or the
+    resumed one; either with the actor hooks, which are not saved with a model."""
+    cfg = res.cfg
+    if cfg.resume:
+        model, train_env = load_checkpoint(
+            algo_class(cfg.algo, cfg.backend), run_dir, train_env, eval_env,
+            res.normalize_kwargs is not None, cfg.device, cfg.tensorboard,
+        )  # fmt: skip
+        if cfg.imitate is not None and isinstance(train_env, VecNormalize):
+            train_env.training = False  # the imitation's statistics stay frozen
+    else:
+        kwargs = dict(res.algo_kwargs)
+        noise = action_noise(res.special, int(np.prod(train_env.action_space.shape)))
+        if noise is not None:
+            kwargs["action_noise"] = noise
+        model = algo_class(cfg.algo, cfg.backend)(
+            env=train_env,
+            tensorboard_log=str(run_dir / "tb") if cfg.tensorboard else None,
+            verbose=cfg.verbose,
+            seed=cfg.seed,
+            device=cfg.device,
+            **kwargs,
+        )
+        if cfg.zero_init_residual:
+            zero_init_actor(model)
+        if cfg.init_log_std is not None:
+            init_actor_log_std(model, cfg.init_log_std)
+        if cfg.imitate is not None:
+            imitate(res, model, train_env, run_dir)
+    if cfg.actor_lr_scale != 1.0:
+        scale_actor_lr(model, cfg.actor_lr_scale)
+    if cfg.actor_bc_weight:
+        add_actor_bc(model, cfg.actor_bc_weight)
+    if cfg.demo_bc_weight:  # from the run's saved demonstrations
+        demo_obs, demo_act = load_demonstrations(run_dir)
+        add_demo_bc(
+            model,
+            demo_obs,
+            demo_act,
+            cfg.demo_bc_weight,
+            [cfg.seed, DEMO_BC_STREAM, model.num_timesteps],  # type: ignore[arg-type]
+        )
+    return model
+
+
+def _callbacks(
+    res: Resolved, model: BaseAlgorithm, run_dir: Path, eval_env: VecEnv, session: str
+) -> list[BaseCallback]:
+    cfg = res.cfg
+    callbacks: list[BaseCallback] = []
+    if cfg.freeze_actor:
+        callbacks.append(ActorWarmupCallback(None))
+    elif cfg.critic_warmup_steps > 0:
+        until = int(model.learning_starts) + cfg.critic_warmup_steps  # type: ignore[attr-defined]
+        callbacks.append(ActorWarmupCallback(until))
+    if cfg.checkpoint_freq > 0:
+        callbacks.append(
+            PruningCheckpointCallback(
+                save_freq=max(cfg.checkpoint_freq // res.n_envs, 1),
+                save_path=str(run_dir / "checkpoints"),
+                name_prefix=CHECKPOINT_PREFIX,
+                save_replay_buffer=True,
+                save_vecnormalize=True,
+            )
+        )
+    if cfg.eval_freq > 0:
+        callbacks.append(
+            EvalCallback(
+                eval_env,
+                n_eval_episodes=cfg.eval_episodes,
+                eval_freq=max(cfg.eval_freq // res.n_envs, 1),
+                best_model_save_path=str(run_dir),
+                log_path=str(run_dir / "eval" / session),
+                deterministic=True,
                 verbose=cfg.verbose,
-                seed=cfg.seed,
-                device=cfg.device,
-                **kwargs,
             )
-            if cfg.zero_init_residual:
-                zero_init_actor(model)
-            if cfg.init_log_std is not None:
-                init_actor_log_std(model, cfg.init_log_std)
-            if cfg.imitate is not None:
-                try:
-                    imitate(res, model, train_env, run_dir)
-                except BaseException:
-                    # Interrupted or failed: nothing trained yet to keep. Free the folder,
-                    # so the same command starts over (a config.yml alone would make it
-                    # refuse, with no checkpoint to --resume from).
-                    (run_dir / "config.yml").unlink(missing_ok=True)
-                    raise
-        if cfg.actor_lr_scale != 1.0:  # fresh or resumed: the hooks are not saved
-            scale_actor_lr(model, cfg.actor_lr_scale)
-        if cfg.actor_bc_weight:  # likewise
-            add_actor_bc(model, cfg.actor_bc_weight)
-        if cfg.demo_bc_weight:  # likewise, from the run's saved demonstrations
-            demo_obs, demo_act = load_demonstrations(run_dir)
-            add_demo_bc(
-                model,
-                demo_obs,
-                demo_act,
-                cfg.demo_bc_weight,
-                [cfg.seed, DEMO_BC_STREAM, model.num_timesteps],  # type: ignore[arg-type]
-            )
+        )
+    return callbacks
+
+
+def _train(res: Resolved, run_dir: Path, started: list[BaseAlgorithm]) -> BaseAlgorithm:
+    cfg = res.cfg
+    start_steps = 0 if not cfg.resume else latest_checkpoint(run_dir)[0]  # type: ignore[index]
+    session = f"from_{start_steps}"
+    train_env, eval_env = make_envs(res, run_dir, session=session)
+    try:
+        model = _model(res, run_dir, train_env, eval_env)
+        train_env = model.get_env()  # type: ignore[assignment]  # resumed: the loaded VecNormalize
+        started.append(model)
         # An explicit logger in the run folder: without one SB3 creates /tmp/SB3-<date>.
         formats = (
             ["csv"]
             + (["stdout"] if cfg.verbose else [])
             + (["tensorboard"] if cfg.tensorboard else [])
         )
-        model.set_logger(configure_logger(str(run_dir / "tb" / f"from_{start_steps}"), formats))
-        callbacks: list[BaseCallback] = []
-        if cfg.critic_warmup_steps > 0:
-            until = int(model.learning_starts) + cfg.critic_warmup_steps  # type: ignore[attr-defined]
-            callbacks.append(ActorWarmupCallback(until))
-        if cfg.checkpoint_freq > 0:
-            callbacks.append(
-                PruningCheckpointCallback(
-                    save_freq=max(cfg.checkpoint_freq // res.n_envs, 1),
-                    save_path=str(run_dir / "checkpoints"),
-                    name_prefix=CHECKPOINT_PREFIX,
-                    save_replay_buffer=True,
-                    save_vecnormalize=True,
-                )
-            )
-        if cfg.eval_freq > 0:
-            callbacks.append(
-                EvalCallback(
-                    eval_env,
-                    n_eval_episodes=cfg.eval_episodes,
-                    eval_freq=max(cfg.eval_freq // res.n_envs, 1),
-                    best_model_save_path=str(run_dir),
-                    log_path=str(run_dir / "eval" / f"from_{start_steps}"),
-                    deterministic=True,
-                    verbose=cfg.verbose,
-                )
-            )
+        model.set_logger(configure_logger(str(run_dir / "tb" / session), formats))
         try:
             model.learn(
                 total_timesteps=res.steps,
-                callback=callbacks,
+                callback=_callbacks(res, model, run_dir, eval_env, session),
                 reset_num_timesteps=not cfg.resume,
                 tb_log_name=cfg.algo,
-                progress_bar=cfg.progress_bar,
+                progress_bar=progress_bar_on(cfg),
             )
         except KeyboardInterrupt:
             # Ctrl-C (or SIGTERM, see sigterm_as_interrupt): keep every step taken, as
@@ -329,7 +416,7 @@ def run(cfg: TrainConfig, argv: Sequence[str] | None = None) -> TrainResult:
     finally:
         train_env.close()
         eval_env.close()
-    return TrainResult(model, run_dir, model.num_timesteps)
+    return model
 
 
 @contextlib.contextmanager

@@ -87,7 +87,8 @@ class StudyConfig:
     out: str
     """Output folder."""
     episodes: int = 10
-    """Paired test episodes per policy and disturbance."""
+    """Paired test episodes per policy and disturbance (>= 2: the bootstrap intervals of
+    the paired differences need two)."""
     workers: int = 0
     """Episode runners (0: the number of cores)."""
     presets: list[str] = field(default_factory=lambda: list(FINAL_PRESETS))
@@ -96,16 +97,30 @@ class StudyConfig:
     """Evaluate only the checkpoints at multiples of this many steps (None: all)."""
 
     def validate(self) -> None:
-        """Raise :class:`InvalidConfigError` naming the first bad field."""
-        if self.episodes < 1 or self.workers < 0 or (self.every is not None and self.every < 1):
-            raise InvalidConfigError("episodes and every must be >= 1, workers >= 0")
+        """Raise :class:`InvalidConfigError` naming every bad field."""
+        bad = []
+        if self.episodes < 2:
+            bad.append(
+                f"episodes must be >= 2, got {self.episodes}: a bootstrap interval of the "
+                "paired differences needs two episodes"
+            )
+        if self.workers < 0:
+            bad.append(f"workers must be >= 0, got {self.workers}")
+        if self.every is not None and self.every < 1:
+            bad.append(f"every must be >= 1, got {self.every}")
         if not self.presets:
-            raise InvalidConfigError("presets must not be empty")
+            bad.append("presets must not be empty")
+        if bad:
+            raise InvalidConfigError("; ".join(bad))
 
 
-def run_study(cfg: StudyConfig, resume: bool = False, progress: bool = True) -> Path:
+def run_study(
+    cfg: StudyConfig, resume: bool = False, progress: bool = True, force: bool = False
+) -> Path:
     """Evaluate every checkpoint of ``cfg.runs`` and the final ones under every preset;
-    write the curves, ``final.md`` and the figures (module docstring); return the folder."""
+    write the curves, ``final.md`` and the figures (module docstring); return the folder.
+    ``resume`` continues both sweeps, ``force`` starts both over in folders that hold files
+    (:func:`train.common.runs.open_run`)."""
     out = Path(cfg.out)
     runs = discover(Path(cfg.runs))
     if cfg.every is not None:
@@ -114,8 +129,8 @@ def run_study(cfg: StudyConfig, resume: bool = False, progress: bool = True) -> 
     final_cfg = sweep_config(runs, cfg.episodes, out / "final", cfg.workers, cfg.presets)
     sweep_cfg.validate()
     final_cfg.validate()
-    run_sweep(sweep_cfg, resume=resume, progress=progress, show=False)
-    run_sweep(final_cfg, resume=resume, progress=progress, show=False)
+    run_sweep(sweep_cfg, resume=resume, progress=progress, show=False, force=force)
+    run_sweep(final_cfg, resume=resume, progress=progress, show=False, force=force)
     df = load_frame(out / "episodes.csv")
     final = load_frame(out / "final" / "episodes.csv")
     curves = curve_frame(df, runs)

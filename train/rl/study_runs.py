@@ -33,7 +33,7 @@ GROUP_KEYS = (
     "reward_weights", "reward", "kernel_weights", "max_path_distance", "hyperparams",
     "overrides", "scale_fraction", "scale_accel_rad_s2", "zero_init_residual", "action_penalty",
     "gate_rad", "gate_deadband_rad", "init_log_std", "critic_warmup_steps", "actor_lr_scale",
-    "actor_bc_weight", "prior_gain_per_rad", "base_model",
+    "actor_bc_weight", "prior_gain_per_rad", "base_model", "freeze_actor",
 )  # fmt: skip
 
 #: ``train.rl.run.TrainConfig``'s defaults of :data:`GROUP_KEYS` (a test keeps them equal;
@@ -45,7 +45,7 @@ GROUP_KEY_DEFAULTS: dict[str, object] = {
     "scale_accel_rad_s2": None, "zero_init_residual": False, "action_penalty": 0.0,
     "gate_rad": None, "gate_deadband_rad": 0.0, "init_log_std": None, "critic_warmup_steps": 0,
     "actor_lr_scale": 1.0, "actor_bc_weight": 0.0, "prior_gain_per_rad": 0.0,
-    "base_model": None,
+    "base_model": None, "freeze_actor": False,
 }  # fmt: skip
 
 #: The presets the final checkpoints are evaluated under (level 1), by default.
@@ -65,6 +65,26 @@ class Run:
     control_hz: float
     checkpoints: tuple[int, ...]  # step counts with a checkpoint, ascending
     config: dict[str, object]
+    #: The last step count whose checkpoint holds the actor as initialised
+    #: (:func:`actor_untrained_through`).
+    untrained_through: float = -1
+
+
+def actor_untrained_through(saved: dict) -> float:
+    """The last step count at which a run's checkpoint still holds its actor as initialised,
+    from its ``config.yml`` (``saved``): off-policy, ``learning_starts`` +
+    ``critic_warmup_steps`` (SB3 updates only past ``learning_starts``; the warm-up holds
+    the actor until it ends; a checkpoint is saved before that step's update); PPO, its
+    first rollout (``n_steps`` · ``n_envs``); ``freeze_actor``: every step (inf). A run that
+    imitated a controller (``imitate``) was trained before step 0: -1."""
+    c, hp = saved["config"], saved.get("hyperparams") or {}
+    if c.get("freeze_actor"):
+        return float("inf")
+    if c.get("imitate"):
+        return -1
+    if c.get("algo") == "ppo":
+        return int(hp.get("n_steps", 2048)) * int((saved.get("derived") or {}).get("n_envs", 1))
+    return int(hp.get("learning_starts", 0)) + int(c.get("critic_warmup_steps") or 0)
 
 
 def is_checkpoint_entry(controller: str) -> bool:
@@ -124,6 +144,7 @@ def discover(root: Path) -> list[Run]:
                 control_hz=float(cfg["derived"]["control_hz"]),
                 checkpoints=tuple(steps),
                 config=c,
+                untrained_through=actor_untrained_through(cfg),
             )
         )
     if not runs:

@@ -111,8 +111,11 @@ def final_table(df: pd.DataFrame, runs: Sequence[Run], resamples: int) -> str:
 
 def samples_to_reach(curves: pd.DataFrame, baselines: dict, runs: Sequence[Run], dist: str) -> str:
     """Markdown table: per group, the training steps each run needed until a checkpoint's
-    mean path distance under ``dist`` was at most its reference's alone (None: not within
-    its checkpoints); the median over the runs that reached it."""
+    mean path distance under ``dist`` was at most its reference's alone ("—": not within
+    its checkpoints); the median over the runs that reached it. Only checkpoints whose
+    actor has trained count (past ``Run.untrained_through``): a zero-initialised residual
+    is its base until then and would "reach" it at once; a run with no such checkpoint
+    is "never trained" and has not reached it."""
     lines = [
         f"| group | reference | steps to reach the reference's path distance ({dist}), "
         "per seed | reached | median (reached) |",
@@ -122,17 +125,27 @@ def samples_to_reach(curves: pd.DataFrame, baselines: dict, runs: Sequence[Run],
         members = sorted((r for r in runs if r.group == group), key=lambda r: r.seed)
         ref_name = reference_of(members[0])
         target = float(baselines[dist][ref_name])
-        reached = []
+        reached: list[int | str | None] = []
         for r in members:
+            if not r.checkpoints or r.checkpoints[-1] <= r.untrained_through:
+                reached.append("never trained")
+                continue
             c = curves[(curves["group"] == group) & (curves["seed"] == r.seed)]
-            c = c[(c["disturbance"] == dist) & (c["path_dist_rms"] <= target)]
+            c = c[(c["disturbance"] == dist) & (c["steps"] > r.untrained_through)]
+            c = c[c["path_dist_rms"] <= target]
             reached.append(int(c["steps"].min()) if len(c) else None)
-        got = [x for x in reached if x is not None]
+        got = [x for x in reached if isinstance(x, int)]
         per_seed = ", ".join("—" if x is None else str(x) for x in reached)
         median = f"{np.median(got):.0f}" if got else "—"
         lines.append(
             f"| {group} | {ref_name} ({target:.2e} rad) | {per_seed} "
             f"| {len(got)}/{len(reached)} | {median} |"
+        )
+    if any(r.checkpoints and r.checkpoints[-1] <= r.untrained_through for r in runs):
+        lines.append("")
+        lines.append(
+            "Never trained: the run's last checkpoint is within its learning_starts + "
+            "critic_warmup_steps (or it froze its actor): its policy is its initialisation."
         )
     steps_of = {r.group: imitation_steps(r) for r in runs}  # a group shares its imitation
     imitated = {g: n for g, n in steps_of.items() if n is not None}

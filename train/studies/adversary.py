@@ -69,7 +69,9 @@ def study_name(controller: str, family: str, energy_j: float, kind: str) -> str:
     return f"{controller}|{family}|{energy_j:g}|{kind}"
 
 
-def run_search(cfg: AdversaryConfig, resume: bool = False, progress: bool = True) -> Path:
+def run_search(
+    cfg: AdversaryConfig, resume: bool = False, progress: bool = True, force: bool = False
+) -> Path:
     """Run (or continue) every study of ``cfg``; write the results; return the folder."""
     try:
         import optuna
@@ -82,7 +84,7 @@ def run_search(cfg: AdversaryConfig, resume: bool = False, progress: bool = True
     cfg.validate()
     check_targets(cfg)
     run = open_run(
-        cfg.out, "optuna.journal", _config_dict(cfg), resume=resume,
+        cfg.out, "optuna.journal", _config_dict(cfg), resume=resume, force=force,
         free=("workers", "out", "budget"),  # a resume may extend the budget
         saved_required=False,
     )  # fmt: skip

@@ -14,6 +14,10 @@ from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
 from train.common import arguments
 
+#: The smallest budget: the warm-started CMA-ES starts from the best tenth of the random
+#: draws (cmaes' ``get_warm_start_mgd``, γ = 0.1), which must hold one draw.
+MIN_BUDGET = 10
+
 #: The families the search can drive, with what it searches.
 FAMILIES: tuple[str, ...] = ("impulse", "push", "periodic")
 
@@ -93,8 +97,12 @@ class AdversaryConfig:
             values = getattr(self, name)
             if len(set(values)) != len(values):
                 raise InvalidConfigError(f"{name} has duplicates: {values}")
-        if self.budget < 1 or self.popsize < 2:
-            raise InvalidConfigError("budget must be >= 1 and popsize >= 2")
+        if self.budget < MIN_BUDGET or self.popsize < 2:
+            raise InvalidConfigError(
+                f"budget must be >= {MIN_BUDGET} (the search starts from the best tenth of as "
+                f"many random draws: at least one) and popsize >= 2, got budget {self.budget}, "
+                f"popsize {self.popsize}"
+            )
         lo, hi = self.onset_s
         if not (0 <= lo <= hi) or not (0 < self.frequency_hz[0] <= self.frequency_hz[1]):
             raise InvalidConfigError("onset_s and frequency_hz must be (low, high) ranges")

@@ -211,11 +211,15 @@ def _read_points(path: Path) -> list[dict[str, Any]]:
     ]  # fmt: skip
 
 
-def run_fronts(cfg: FrontConfig, resume: bool = False, progress: bool = True) -> Path:
+def run_fronts(
+    cfg: FrontConfig, resume: bool = False, progress: bool = True, force: bool = False
+) -> Path:
     """Run (or continue) the sweep of ``cfg``; write the results; return the folder."""
     cfg.validate()
     settings = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("workers", "out")}
-    run = open_run(cfg.out, "points.csv", settings, resume=resume, saved_required=False)
+    run = open_run(
+        cfg.out, "points.csv", settings, resume=resume, force=force, saved_required=False
+    )
     out, points_csv = run.out, run.results
     done = _read_points(points_csv)
     keys = {(r["controller"], r["scale"], r["disturbance"], r["seed"]) for r in done}

@@ -172,13 +172,15 @@ def run_one(cfg: RatesConfig, key: tuple[Any, ...]) -> dict[str, Any]:
     return {**row, "refused": 0, **{k: metrics[k] for k in (*METRIC_NAMES, "steps", "wall_s")}}
 
 
-def run_study(cfg: RatesConfig, resume: bool = False, progress: bool = True) -> Path:
+def run_study(
+    cfg: RatesConfig, resume: bool = False, progress: bool = True, force: bool = False
+) -> Path:
     """Run (or resume) the study of ``cfg``, then write its report; return the folder."""
     cfg.validate()
     settings = {
         k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("workers", "out", "plots")
     }
-    run = open_run(cfg.out, "episodes.csv", settings, resume=resume)
+    run = open_run(cfg.out, "episodes.csv", settings, resume=resume, force=force)
     out, episodes = run.out, run.results
     finished = {
         tuple(r[k] for k in KEY_COLUMNS) for r in read_episodes(episodes, COLUMNS, KEY_COLUMNS)

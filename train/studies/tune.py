@@ -105,8 +105,12 @@ class TuneConfig:
         unknown = [d for d in self.disturbances if d not in PRESETS]
         if not self.disturbances or unknown:
             raise InvalidConfigError(f"disturbances must be presets of {list(PRESETS)}")
-        if self.trials < 1 or not 0 <= self.startup_trials:
-            raise InvalidConfigError("trials must be >= 1 and startup_trials >= 0")
+        if self.trials < 1 or not 0 <= self.startup_trials <= self.trials:
+            raise InvalidConfigError(
+                f"trials must be >= 1 and 0 <= startup_trials <= trials (the random trials "
+                f"TPE starts from are part of the budget), got trials {self.trials}, "
+                f"startup_trials {self.startup_trials}"
+            )
         if not self.validation_seeds:
             raise InvalidConfigError("validation_seeds must not be empty")
         if self.effort_budget is not None and not (
@@ -156,15 +160,19 @@ def tune(
     resume: bool = False,
     save_dir: Path | None = None,
     progress: bool = True,
+    force: bool = False,
 ) -> dict[str, dict[str, Any]]:
     """Run (or continue) one study per controller; return {controller: best result}.
 
-    ``save_dir`` (``--save``: :data:`agents.registry.TUNED_DIR`) receives the best gain rates of
-    each controller as ``<robot>-<controller>.yml``, with the study's settings.
+    ``save_dir`` (``--save``: :data:`agents.registry.TUNED_DIR`) receives the best gain rates
+    of each controller as ``<robot>-<controller>.yml``, with the study's settings; a file
+    already there (the shipped gains) is replaced only with ``force``, which also starts a
+    study over in an ``out`` that holds files.
 
     Raises:
         InvalidConfigError: a bad config (before any episode), an existing study without
-            ``resume``, a resumed study with other settings, or no trial within the budget.
+            ``resume`` or ``force``, a tuned-gains file ``save_dir`` holds without
+            ``force``, a resumed study with other settings, or no trial within the budget.
     """
     try:
         import optuna
@@ -176,9 +184,16 @@ def tune(
         ) from exc
     cfg.validate()
     robot = profile_for_env_id(cfg.env_id).name
+    if save_dir is not None and not force:
+        shipped = [p for c in cfg.controllers if (p := save_dir / f"{robot}-{c}.yml").exists()]
+        if shipped:
+            raise InvalidConfigError(
+                f"--save would replace {', '.join(map(str, shipped))}: add --force to "
+                "replace the tuned gains, or tune without --save"
+            )
     settings_dict = _settings(cfg)
     run = open_run(
-        cfg.out, "optuna.journal", settings_dict, resume=resume, free=("trials",),
+        cfg.out, "optuna.journal", settings_dict, resume=resume, force=force, free=("trials",),
         saved_required=False,
     )  # fmt: skip
     out, journal = run.out, run.results
