@@ -34,6 +34,7 @@ from train.common.threads import one_thread_defaults
 one_thread_defaults()
 
 import argparse  # noqa: E402
+import importlib  # noqa: E402
 import os  # noqa: E402
 import shlex  # noqa: E402
 import sys  # noqa: E402
@@ -74,21 +75,63 @@ def _config(cls: type, args: argparse.Namespace, command: str) -> Any:
 
 
 # -- evaluate ------------------------------------------------------------------------------
-def _evaluate_parser(p: argparse.ArgumentParser) -> None:
-    from train.evaluation.config import EvalConfig
+# -- the commands of one config dataclass ----------------------------------------------------
+def _config_command(
+    where: str, what: str, run: Callable[[Any, argparse.Namespace], Path | None]
+) -> tuple[Callable[[argparse.ArgumentParser], None], Runner]:
+    """The parser builder and runner of a command whose config is the dataclass ``where``
+    (``"module:Class"``): its generated arguments, ``--resume``/``--force`` (of ``what``),
+    ``--no-progress``; the runner states the config, then ``run(config, args)`` — a file it
+    returns is printed."""
+    module, _, name = where.partition(":")
 
-    add_config_arguments(p, EvalConfig)
-    _resume(p, "interrupted sweep")
-    _progress(p)
+    def config_class() -> type:
+        return getattr(importlib.import_module(module), name)
+
+    def build(p: argparse.ArgumentParser) -> None:
+        add_config_arguments(p, config_class())
+        _resume(p, what)
+        _progress(p)
+
+    def runner(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+        cfg = _config(config_class(), args, p.prog.removeprefix("ptrack "))
+        shown = run(cfg, args)
+        if shown is not None:
+            print(shown.read_text())
+        return 0
+
+    return build, runner
 
 
-def _evaluate(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
-    from train.evaluation.config import EvalConfig
+def _run_evaluate(cfg: Any, a: argparse.Namespace) -> None:
     from train.evaluation.sweep import run_sweep
 
-    cfg = _config(EvalConfig, args, "evaluate")
-    run_sweep(cfg, resume=args.resume, progress=not args.no_progress, force=args.force)
-    return 0
+    run_sweep(cfg, resume=a.resume, progress=not a.no_progress, force=a.force)
+
+
+def _run_study(cfg: Any, a: argparse.Namespace) -> Path:
+    from train.rl.study import run_study
+
+    return run_study(cfg, a.resume, not a.no_progress, force=a.force) / "final.md"
+
+
+def _run_fronts(cfg: Any, a: argparse.Namespace) -> None:
+    from train.studies.fronts import run_fronts
+
+    run_fronts(cfg, a.resume, not a.no_progress, force=a.force)
+
+
+def _run_adversary(cfg: Any, a: argparse.Namespace) -> None:
+    from train.studies.adversary import run_search
+
+    run_search(cfg, a.resume, not a.no_progress, force=a.force)
+
+
+def _run_rates(cfg: Any, a: argparse.Namespace) -> None:
+    from train.studies.rates import run_study
+
+    out = run_study(cfg, resume=a.resume, progress=not a.no_progress, force=a.force)
+    print((out / "report.md").read_text().split("## Where each controller holds")[-1])
 
 
 # -- train -----------------------------------------------------------------------------------
@@ -110,23 +153,6 @@ def _train(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
     with sigterm_as_interrupt():
         result = run(cfg, args.words)
     print(f"trained {result.num_timesteps} steps; run folder: {result.run_dir}")
-    return 0
-
-
-def _study_parser(p: argparse.ArgumentParser) -> None:
-    from train.rl.study import StudyConfig
-
-    add_config_arguments(p, StudyConfig)
-    _resume(p, "evaluation")
-    _progress(p)
-
-
-def _study(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
-    from train.rl.study import StudyConfig, run_study
-
-    cfg = _config(StudyConfig, args, "study")
-    out = run_study(cfg, args.resume, not args.no_progress, force=args.force)
-    print((out / "final.md").read_text())
     return 0
 
 
@@ -156,38 +182,6 @@ def _tune(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
     return 0
 
 
-def _fronts_parser(p: argparse.ArgumentParser) -> None:
-    from train.studies.fronts import FrontConfig
-
-    add_config_arguments(p, FrontConfig)
-    _resume(p, "sweep")
-    _progress(p)
-
-
-def _fronts(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
-    from train.studies.fronts import FrontConfig, run_fronts
-
-    cfg = _config(FrontConfig, args, "fronts")
-    run_fronts(cfg, args.resume, not args.no_progress, force=args.force)
-    return 0
-
-
-def _adversary_parser(p: argparse.ArgumentParser) -> None:
-    from train.studies.adversary import AdversaryConfig
-
-    add_config_arguments(p, AdversaryConfig)
-    _resume(p, "studies")
-    _progress(p)
-
-
-def _adversary(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
-    from train.studies.adversary import AdversaryConfig, run_search
-
-    cfg = _config(AdversaryConfig, args, "adversary")
-    run_search(cfg, args.resume, not args.no_progress, force=args.force)
-    return 0
-
-
 def _replay_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("worst", type=Path, help="a search's worst.yml, or its folder")
 
@@ -201,23 +195,6 @@ def _replay(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
         raise InvalidConfigError(f"{worst} does not exist: give a search's worst.yml or folder")
     for line in replay_all(worst):
         print(line)
-    return 0
-
-
-def _rates_parser(p: argparse.ArgumentParser) -> None:
-    from train.studies.rates import RatesConfig
-
-    add_config_arguments(p, RatesConfig)
-    _resume(p, "study")
-    _progress(p)
-
-
-def _rates(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
-    from train.studies.rates import RatesConfig, run_study
-
-    cfg = _config(RatesConfig, args, "rates")
-    out = run_study(cfg, resume=args.resume, progress=not args.no_progress, force=args.force)
-    print((out / "report.md").read_text().split("## Where each controller holds")[-1])
     return 0
 
 
@@ -291,7 +268,6 @@ def _delegate(module: str) -> tuple[Callable[[argparse.ArgumentParser], None], R
         """The module's ``main`` parses the arguments (``--help`` is its own)."""
 
     def run(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
-        import importlib
 
         result = importlib.import_module(module).main(args.argv)
         return result if isinstance(result, int) else 0
@@ -300,15 +276,30 @@ def _delegate(module: str) -> tuple[Callable[[argparse.ArgumentParser], None], R
 
 
 COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Runner]] = {
-    "evaluate": ("paired evaluation sweep", _evaluate_parser, _evaluate),
+    "evaluate": (
+        "paired evaluation sweep",
+        *_config_command("train.evaluation.config:EvalConfig", "sweep", _run_evaluate),
+    ),
     "train": ("train one RL policy (SB3)", _train_parser, _train),
     "campaign": ("train the runs of a campaign file", *_delegate("train.rl.campaign")),
-    "study": ("learning curves and final tables of RL runs", _study_parser, _study),
+    "study": (
+        "learning curves and final tables of RL runs",
+        *_config_command("train.rl.study:StudyConfig", "evaluation", _run_study),
+    ),
     "tune": ("equal-budget gain tuning (Optuna)", _tune_parser, _tune),
-    "fronts": ("error against effort fronts", _fronts_parser, _fronts),
-    "adversary": ("adversarial disturbance search", _adversary_parser, _adversary),
+    "fronts": (
+        "error against effort fronts",
+        *_config_command("train.studies.fronts:FrontConfig", "sweep", _run_fronts),
+    ),
+    "adversary": (
+        "adversarial disturbance search",
+        *_config_command("train.studies.adversary:AdversaryConfig", "studies", _run_adversary),
+    ),
     "replay": ("re-run the worst cases of a search", _replay_parser, _replay),
-    "rates": ("the control rate as a robustness axis", _rates_parser, _rates),
+    "rates": (
+        "the control rate as a robustness axis",
+        *_config_command("train.studies.rates:RatesConfig", "study", _run_rates),
+    ),
     "report": ("rewrite and print results folders' reports", _report_parser, _report),
     "probe-actions": (
         "action usage of trained policies",
