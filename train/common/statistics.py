@@ -3,10 +3,8 @@ intervals, the interquartile mean, CVaR, and rliable's stratified bootstrap and
 performance profiles.
 
 * :func:`paired_comparisons` — every controller against a reference in every condition:
-  the paired difference of a metric over the episodes two controllers share (same seed,
-  same episode: the same start and disturbance), with a percentile-bootstrap interval at
-  the Bonferroni-adjusted confidence 1 − α/K (K comparisons), marked "better" or "worse"
-  only when the interval excludes 0;
+  an exact sign-flip test per pair set, Holm's step-down over the family, the effect with a
+  BCa interval (:mod:`train.common.paired_tests`, re-exported here);
 * :func:`bootstrap_ci`, :func:`iqm`, :func:`cvar`;
 * :func:`stratified_bootstrap`, :func:`iqm_and_mean`, :func:`interval_estimates`,
   :func:`performance_profile` — rliable's (Agarwal et al., NeurIPS 2021) aggregate over
@@ -20,15 +18,18 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-import pandas as pd
 from scipy import stats
 
-#: The family-wise error rate of a report's marks.
-ALPHA = 0.05
+from train.common.paired_tests import (  # noqa: F401  (re-exported)
+    ALPHA,
+    COMPARISON_COLUMNS,
+    PAIR_KEY,
+    paired_comparisons,
+    pairs_needed,
+)
+
 #: The fraction of worst episodes the tail metric averages.
 TAIL_FRACTION = 0.1
-#: The columns that pair two controllers' episodes: the same start and disturbance.
-PAIR_KEY = ["seed", "episode"]
 
 
 def cvar(values: np.ndarray, fraction: float = TAIL_FRACTION) -> float:
@@ -38,72 +39,6 @@ def cvar(values: np.ndarray, fraction: float = TAIL_FRACTION) -> float:
         return float("nan")
     k = max(1, math.ceil(fraction * x.size))
     return float(np.mean(x[-k:]))
-
-
-#: The columns of :func:`paired_comparisons`, in order.
-COMPARISON_COLUMNS = (
-    "disturbance", "level", "controller", "pairs", "reference_mean", "mean", "diff", "ratio",
-    "ci_low", "ci_high", "mark", "comparisons", "confidence",
-)  # fmt: skip
-
-
-def paired_comparisons(
-    df: pd.DataFrame,
-    metric: str,
-    reference: str,
-    alpha: float = ALPHA,
-    resamples: int = 20_000,
-    seed: int = 0,
-) -> pd.DataFrame:
-    """Every controller against ``reference`` in every condition (module docstring).
-
-    Columns: disturbance, level, controller, pairs, reference_mean, mean, diff, ratio
-    (mean / reference_mean), ci_low, ci_high (Bonferroni-adjusted), mark ("better",
-    "worse" — lower is better — or "unresolved"), comparisons (K), confidence.
-    """
-    conditions = (
-        df[["disturbance", "level"]].drop_duplicates().sort_values(["disturbance", "level"])
-    )
-    others = sorted(c for c in df["controller"].unique() if c != reference)
-    k = max(1, len(conditions) * len(others))
-    confidence = 1.0 - alpha / k
-    rows = []
-    for _, (dist, level) in conditions.iterrows():
-        cond = df[(df["disturbance"] == dist) & (df["level"] == level)]
-        ref = cond[cond["controller"] == reference].set_index(PAIR_KEY)[metric]
-        for ctrl in others:
-            x = cond[cond["controller"] == ctrl].set_index(PAIR_KEY)[metric]
-            common = x.index.intersection(ref.index)
-            diff = x.loc[common].to_numpy(float) - ref.loc[common].to_numpy(float)
-            lo, hi = bootstrap_ci(diff, np.mean, resamples, seed, confidence)
-            if not (np.isfinite(lo) and np.isfinite(hi)):
-                mark = "unresolved"
-            elif hi < 0:
-                mark = "better"
-            elif lo > 0:
-                mark = "worse"
-            else:
-                mark = "unresolved"
-            ref_mean = float(ref.loc[common].mean()) if len(common) else float("nan")
-            mean = float(x.loc[common].mean()) if len(common) else float("nan")
-            rows.append(
-                {
-                    "disturbance": dist,
-                    "level": float(level),
-                    "controller": ctrl,
-                    "pairs": len(common),
-                    "reference_mean": ref_mean,
-                    "mean": mean,
-                    "diff": float(np.mean(diff)) if len(diff) else float("nan"),
-                    "ratio": mean / ref_mean if ref_mean else float("nan"),
-                    "ci_low": lo,
-                    "ci_high": hi,
-                    "mark": mark,
-                    "comparisons": k,
-                    "confidence": confidence,
-                }
-            )
-    return pd.DataFrame(rows, columns=COMPARISON_COLUMNS)  # the columns even with no others
 
 
 def iqm(x: np.ndarray, axis: int = -1) -> np.ndarray:

@@ -40,8 +40,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from train.common.paired_tests import EXACT_MAX_PAIRS, TooFewPairsError
 from train.common.statistics import (
     ALPHA,
+    COMPARISON_COLUMNS,
     PAIR_KEY,
     cvar,
     interval_estimates,
@@ -50,6 +52,17 @@ from train.common.statistics import (
     paired_comparisons,
 )
 from train.evaluation.results import no_disturbance
+from train.evaluation.verdict import (
+    condition_name,
+    failures_sentence,
+    ranking_table,
+    report_metrics,
+    rival_comparisons,
+    rival_sentence,
+    rival_table,
+    verdict_paragraph,
+    words,
+)
 from train.plots.evaluation import aggregate_plot
 
 
@@ -71,10 +84,6 @@ def condition_table(df: pd.DataFrame, metric: str) -> pd.DataFrame:
             }
         )
     return pd.DataFrame(rows)
-
-
-def _condition_name(dist: str, level: float) -> str:
-    return "undisturbed" if dist == "none" else f"{dist} {level:g}"
 
 
 def idle_conditions(df: pd.DataFrame) -> dict[tuple[str, float], str]:
@@ -108,58 +117,9 @@ def idle_sentence(idle: dict[tuple[str, float], str]) -> str:
     if not idle:
         return ""
     notes = "; ".join(
-        f"{_condition_name(d, lv)}: {note}: not compared" for (d, lv), note in idle.items()
+        f"{condition_name(d, lv)}: {note}: not compared" for (d, lv), note in idle.items()
     )
     return f"{notes} (onsets after the episode's end? Rerun with longer episodes)."
-
-
-def verdict_paragraph(
-    comparisons: pd.DataFrame, table: pd.DataFrame, reference: str, metric: str
-) -> str:
-    """One paragraph, written from the marks: per controller, where it is better than,
-    worse than or not resolved from the reference; which controller has the lowest mean and
-    the lowest CVaR₁₀ most often; and the failures."""
-    if comparisons.empty:
-        return f"Only {reference} was evaluated: there is nothing to compare."
-    k = int(comparisons["comparisons"].iloc[0])
-    conditions = comparisons[["disturbance", "level"]].drop_duplicates()
-    n_cond = len(conditions)
-    pairs = int(comparisons["pairs"].min())
-    parts = [
-        f"Against {reference}, over {n_cond} conditions with {pairs} paired episodes each "
-        f"({k} comparisons, Bonferroni-adjusted {100 * (1 - ALPHA):.0f}% simultaneous "
-        f"intervals on the paired difference of {metric}; lower is better):"
-    ]
-    for ctrl, g in comparisons.groupby("controller", sort=True):
-        counts = {m: g[g["mark"] == m] for m in ("better", "worse", "unresolved")}
-        pieces = []
-        for mark, word in (("better", "closer to the path"), ("worse", "farther from it")):
-            sub = counts[mark]
-            if len(sub):
-                names = ", ".join(
-                    _condition_name(d, lv)
-                    for d, lv in zip(sub["disturbance"], sub["level"], strict=True)
-                )
-                med = float(np.median(sub["ratio"]))
-                pieces.append(f"{word} in {len(sub)} ({names}; median ratio of means {med:.2g})")
-        pieces.append(f"not resolved in {len(counts['unresolved'])}")
-        parts.append(f"{ctrl} is " + ", ".join(pieces) + ".")
-    best_mean = table.loc[table.groupby(["disturbance", "level"])["mean"].idxmin(), "controller"]
-    best_tail = table.loc[table.groupby(["disturbance", "level"])["cvar10"].idxmin(), "controller"]
-    lead = best_mean.value_counts()
-    tail = best_tail.value_counts()
-    parts.append(
-        "Lowest mean: "
-        + ", ".join(f"{c} in {n}" for c, n in lead.items())
-        + " of the conditions; lowest CVaR₁₀ (worst 10% of episodes): "
-        + ", ".join(f"{c} in {n}" for c, n in tail.items())
-        + " (point estimates, not marks)."
-    )
-    failures = table.groupby("controller")["failures"].sum()
-    episodes = table.groupby("controller")["n"].sum()
-    failed = [f"{c} {int(failures[c])}/{int(episodes[c])}" for c in failures.index if failures[c]]
-    parts.append("Failed episodes: " + ("; ".join(failed) if failed else "none") + ".")
-    return " ".join(parts)
 
 
 def normalized_scores(df: pd.DataFrame, metric: str) -> tuple[dict[str, np.ndarray], list[str]]:
@@ -169,7 +129,7 @@ def normalized_scores(df: pd.DataFrame, metric: str) -> tuple[dict[str, np.ndarr
     higher is better, comparable across conditions whose errors differ by decades."""
     df = df.copy()
     df["condition"] = [
-        _condition_name(d, lv) for d, lv in zip(df["disturbance"], df["level"], strict=True)
+        condition_name(d, lv) for d, lv in zip(df["disturbance"], df["level"], strict=True)
     ]
     tasks = sorted(df["condition"].unique())
     median = df.groupby("condition")[metric].median()
@@ -306,6 +266,30 @@ def worst_case_sentence(folders: Sequence[str | Path]) -> str:
     return ("Worst case — " + "; ".join(parts) + ".") if parts else ""
 
 
+def _comparisons(df: pd.DataFrame, metric: str, reference: str, resamples: int) -> pd.DataFrame:
+    """:func:`paired_comparisons` on ``metric``, or an empty table where a comparison has
+    fewer than 2 pairs (a one-seed sweep: nothing can be tested)."""
+    try:
+        return paired_comparisons(df, metric, reference, resamples=resamples)
+    except TooFewPairsError:
+        return pd.DataFrame(columns=list(COMPARISON_COLUMNS))
+
+
+def _cell(r: pd.Series, metric: str, is_ref: bool, note: str | None) -> str:
+    """The difference, interval, Holm p and mark cells of one metric (blank for the
+    reference, "not compared" for a condition in which nothing happened)."""
+    if note:
+        return " | | not compared"
+    if is_ref:
+        return "reference | |"
+    if pd.isna(r.get(f"mark_{metric}")):
+        return " | | no test (< 2 pairs)"
+    return (
+        f"{r[f'diff_{metric}']:+.3g} [{r[f'ci_low_{metric}']:+.3g}, {r[f'ci_high_{metric}']:+.3g}]"
+        f" | {r[f'p_holm_{metric}']:.2g} | {r[f'mark_{metric}']}"
+    )
+
+
 def write_report(
     df: pd.DataFrame,
     out: Path,
@@ -316,67 +300,120 @@ def write_report(
     title: str = "",
     figures: bool = True,
     draw: Callable[..., Any] | None = None,
+    focus: str = "passivity",
 ) -> Path:
-    """Write ``out/report.md`` (and ``comparisons.csv``, and with ``figures``
-    ``aggregate.png``, drawn by ``draw`` if given: see :func:`aggregate`); return its path."""
+    """Write ``out/report.md`` (and ``comparisons.csv`` — every metric's comparisons, a
+    ``metric`` column apart; ``rivals.csv`` where ``focus`` ran; with ``figures``
+    ``aggregate.png``, drawn by ``draw`` if given: see :func:`aggregate`); return its path.
+
+    Both metrics of :func:`~train.evaluation.verdict.report_metrics` are tested (Holm's
+    family is one metric's comparisons) and shown side by side; ``focus`` is compared with
+    its strongest rival in each condition on each."""
     idle = idle_conditions(df)
     compared = df[_compared(df, idle)] if idle else df
+    metrics = report_metrics(metric, df.columns)
     # First, so that a ``draw`` handing the figure to other processes overlaps the rest.
     aggregate_section = (
         aggregate(compared, metric, out if figures else None, draw=draw)
         if len(compared)
         else "Aggregate scores: no condition is compared."
     )
-    comparisons = paired_comparisons(compared, metric, reference, resamples=resamples)
-    comparisons.to_csv(out / "comparisons.csv", index=False, float_format="%.17g")
-    table = condition_table(df, metric)
-    verdict = (
-        verdict_paragraph(comparisons, table[_compared(table, idle)], reference, metric)
+    comparisons = {m: _comparisons(compared, m, reference, resamples) for m in metrics}
+    pd.concat(comparisons.values()).to_csv(
+        out / "comparisons.csv", index=False, float_format="%.17g"
+    )
+    tables = {m: condition_table(df, m) for m in metrics}
+    table = tables[metric]
+    rivals = pd.DataFrame()
+    if len(compared) and compared.groupby(["disturbance", "level", "controller"]).size().min() > 1:
+        rivals = pd.concat([rival_comparisons(compared, m, focus, resamples) for m in metrics])
+        if len(rivals):
+            rivals.to_csv(out / "rivals.csv", index=False, float_format="%.17g")
+    verdicts = [
+        verdict_paragraph(comparisons[m], tables[m][_compared(tables[m], idle)], reference, m)
         if len(compared)
         else "No condition is compared."
-    )
-    merged = table.merge(
-        comparisons[["disturbance", "level", "controller", "diff", "ci_low", "ci_high", "mark"]],
-        on=["disturbance", "level", "controller"],
-        how="left",
-    )
+        for m in metrics
+    ]
+    merged = table
+    for m in metrics:
+        merged = merged.merge(
+            tables[m][["disturbance", "level", "controller", "mean"]].rename(
+                columns={"mean": f"mean_{m}"}
+            ),
+            on=["disturbance", "level", "controller"],
+        )
+        cols = ["diff", "ci_low", "ci_high", "p_holm", "mark"]
+        merged = merged.merge(
+            comparisons[m][["disturbance", "level", "controller", *cols]].rename(
+                columns={c: f"{c}_{m}" for c in cols}
+            ),
+            on=["disturbance", "level", "controller"],
+            how="left",
+        )
+    head = " | ".join(f"{words(m)} mean | Δ vs ref [CI] | p (Holm) | mark" for m in metrics)
     lines = [
         f"# Verdict{': ' + title if title else ''}",
         "",
         " ".join(
             p
             for p in (
-                verdict,
+                *verdicts,
+                rival_sentence(rivals, focus),
+                failures_sentence(table[_compared(table, idle)] if len(compared) else table),
                 idle_sentence(idle),
                 worst_case_sentence(worst_case),
             )
             if p
         ),
         "",
-        f"## Per condition ({metric}, rad; paired difference to {reference})",
+        f"## Per condition (rad; paired difference to {reference})",
         "",
-        "| condition | controller | n | mean | IQM | CVaR₁₀ | failures | diff vs ref | "
-        f"{100 * (1 - ALPHA):.0f}% simultaneous CI | mark |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---|---|",
+        f"| condition | controller | n | failures | {head} | IQM ({words(metric)}) "
+        f"| CVaR₁₀ ({words(metric)}) |",
+        "|---|---|---:|---:|" + "---:|---|---:|---|" * len(metrics) + "---:|---:|",
     ]
     for _, r in merged.iterrows():
         is_ref = r["controller"] == reference
         note = idle.get((r["disturbance"], float(r["level"])))
-        diff = "reference" if is_ref else "" if note else f"{r['diff']:+.3g}"
-        ci = "" if is_ref or note else f"[{r['ci_low']:+.3g}, {r['ci_high']:+.3g}]"
-        mark = "not compared" if note else "" if is_ref else r["mark"]
+        cells = " | ".join(f"{r[f'mean_{m}']:.3g} | {_cell(r, m, is_ref, note)}" for m in metrics)
         lines.append(
-            f"| {_condition_name(r['disturbance'], r['level'])} | {r['controller']} | {r['n']} "
-            f"| {r['mean']:.3g} | {r['iqm']:.3g} | {r['cvar10']:.3g} | {r['failures']} | {diff} "
-            f"| {ci} | {mark} |"
+            f"| {condition_name(r['disturbance'], r['level'])} | {r['controller']} | {r['n']} "
+            f"| {r['failures']} | {cells} | {r['iqm']:.3g} | {r['cvar10']:.3g} |"
         )
-    k = int(comparisons["comparisons"].iloc[0]) if len(comparisons) else 0
-    confidence = float(comparisons["confidence"].iloc[0]) if len(comparisons) else 1.0
+    some = next((c for c in comparisons.values() if len(c)), None)
+    if some is not None:
+        k, confidence = int(some["comparisons"].iloc[0]), float(some["confidence"].iloc[0])
+        need, pairs = int(some["pairs_needed"].iloc[0]), int(some["pairs"].min())
+        lines += [
+            "",
+            f"Paired tests: per metric a family of {k} comparisons; each an exact sign-flip test "
+            f"of the mean paired difference (Monte Carlo beyond {EXACT_MAX_PAIRS} pairs), marked "
+            f"only where Holm's step-down rejects at family-wise {100 * ALPHA:.0f}%; the "
+            f"intervals are BCa bootstrap intervals at {100 * confidence:.3f}% (Bonferroni, "
+            f"simultaneous; {resamples} resamples) and describe the effect, they do not mark it. "
+            f"This family needs ≥ {need} pairs before anything can be resolved; it has {pairs}."
+            + (" **Nothing here can be resolved.**" if pairs < need else "")
+            + " CVaR₁₀ = mean of the worst ⌈10%·n⌉ episodes.",
+        ]
+    else:
+        lines += ["", "Paired tests: none (fewer than 2 paired episodes per comparison)."]
+    if len(rivals):
+        lines += [
+            "",
+            f"## {focus} against the strongest rival",
+            "",
+            "The rival is the other controller with the lowest mean in the condition, on each "
+            "metric; outcome from a paired sign-flip test with Holm's correction over the "
+            "conditions (one family per metric).",
+            "",
+            rival_table(rivals),
+        ]
     lines += [
         "",
-        f"Multiple comparisons: {k} comparisons, each interval at {100 * confidence:.3f}% "
-        f"(Bonferroni, family-wise {100 * ALPHA:.0f}%), percentile bootstrap of the mean paired "
-        f"difference ({resamples} resamples); CVaR₁₀ = mean of the worst ⌈10%·n⌉ episodes.",
+        "## Rankings",
+        "",
+        ranking_table(compared if len(compared) else df, metrics),
         "",
         "## Aggregate over conditions",
         "",
