@@ -3,8 +3,11 @@
 * :mod:`~ptrack_gym.disturbances.base` — the :class:`Disturbance` interface (its hooks),
   the :class:`DisturbanceContext` a disturbance may read, and :data:`RECOVERY_S`, the time
   an episode must leave after a disturbance's latest event (shorter episodes are refused);
-* :mod:`~ptrack_gym.disturbances.families` — the families (impulse, step, periodic and
-  noise torques, push, payload, mismatch, action and observation noise, delay);
+* :mod:`~ptrack_gym.disturbances.torques` — the joint-torque families (impulse, step,
+  periodic and noise torques), sized by M(q_home) or, with ``sizing="onset"``, by M(q)
+  at the configuration where they start to act (:data:`SIZINGS`);
+* :mod:`~ptrack_gym.disturbances.families` — the other families (push, payload, mismatch,
+  action and observation noise, delay), and the joint torques re-exported;
 * :mod:`~ptrack_gym.disturbances.presets` — presets × levels and :func:`build_disturbances`;
 * :mod:`~ptrack_gym.disturbances.runner` — the sub-step loop and the work ledger.
 
@@ -16,6 +19,7 @@ run with the same seed meet exactly the same disturbances.
 from ptrack_gym.disturbances.base import (
     DISTURBANCES,
     RECOVERY_S,
+    SIZINGS,
     Disturbance,
     DisturbanceContext,
     MassChange,
@@ -23,15 +27,11 @@ from ptrack_gym.disturbances.base import (
 )
 from ptrack_gym.disturbances.families import (
     ActionNoise,
-    ImpulseTorque,
     Mismatch,
-    NoiseTorque,
     ObservationDelay,
     ObservationNoise,
     Payload,
-    PeriodicTorque,
     Push,
-    StepTorque,
 )
 from ptrack_gym.disturbances.presets import (
     ENERGY_PRESETS,
@@ -43,12 +43,19 @@ from ptrack_gym.disturbances.presets import (
     preset_specs,
 )
 from ptrack_gym.disturbances.runner import DisturbanceRunner
+from ptrack_gym.disturbances.torques import (
+    ImpulseTorque,
+    NoiseTorque,
+    PeriodicTorque,
+    StepTorque,
+)
 
 __all__ = [
     "DISTURBANCES",
     "ENERGY_PRESETS",
     "PRESETS",
     "RECOVERY_S",
+    "SIZINGS",
     "ActionNoise",
     "Disturbance",
     "DisturbanceContext",

@@ -47,6 +47,11 @@ DISTURBANCES: dict[str, type[Disturbance]] = {}
 #: in s (:meth:`Disturbance.timed_events`).
 TimedEvent = tuple[str, float | tuple[float, float], float]
 
+#: How a joint-torque family's M(q)-based size is taken (its ``sizing`` field): ``"home"``
+#: from the nominal M(q_home), whatever the arm's state; ``"onset"`` from the nominal M(q) at
+#: the configuration the arm is in when the torque starts to act (per family: its docstring).
+SIZINGS: tuple[str, ...] = ("home", "onset")
+
 #: The least time (s) an episode must run after a timed disturbance's latest possible event
 #: ends (latest onset + duration): the recovery window. 0.5 s is 10 impulse and 5 push
 #: durations of the presets, and more than most recoveries take (results/main, iiwa, 1 kHz:
@@ -71,7 +76,8 @@ class DisturbanceContext:
         ee_jacobian_home: translational Jacobian of the ee link's centre of mass at home, (3, n).
         mean_path_speed_rad_s: mean |q_r'| along the reference (rad/s), for energy budgets.
         link_jacobians_home: every link's centre-of-mass Jacobian at home, (3, n), by name.
-        mass_matrix: the nominal model's M(q) (kg·m²), for sizing by the state at onset.
+        mass_matrix: the nominal model's M(q) (kg·m²), for sizing by the state at onset
+            (``energy_mode="delivered"``, ``sizing="onset"``); None where unavailable.
     """
 
     n: int
@@ -213,6 +219,13 @@ def check_non_negative(value: float | tuple[float, float], name: str) -> None:
         for v in values
     ):
         raise InvalidConfigError(f"{name} must be >= 0 (or a (low, high) range), got {value!r}")
+
+
+def check_sizing(value: Any, name: str = "sizing") -> str:
+    """``value`` if it is one of :data:`SIZINGS`, else :class:`InvalidConfigError` listing them."""
+    if not (isinstance(value, str) and value in SIZINGS):
+        raise InvalidConfigError(f"{name} must be one of {SIZINGS}, got {value!r}")
+    return value
 
 
 def latest(value: float | tuple[float, float]) -> float:

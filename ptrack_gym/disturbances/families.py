@@ -1,4 +1,6 @@
-"""The disturbance families: joint torques, pushes, payloads, model mismatch, noise, delay.
+"""The disturbance families: pushes, payloads, model mismatch, noise, delay — and, from
+:mod:`~ptrack_gym.disturbances.torques` (re-exported here), the joint torques (impulse,
+step, periodic and noise torques).
 
 Each class is a dataclass whose fields are its spec (``{"type": name, field: value}``)
 and registers itself under its ``name`` (:data:`~ptrack_gym.disturbances.base.DISTURBANCES`).
@@ -7,6 +9,8 @@ joint inertia (``accel_rad_s2``: comparable on light wrists and heavy shoulders)
 energy budgets (``energy_j``). Families with onsets (impulse, step, push, payload) refuse,
 at env construction, an episode too short for their latest onset, its duration and the
 recovery window :data:`~ptrack_gym.disturbances.base.RECOVERY_S` (``timed_events``).
+The families here are sized at the home pose only (the joint torques' ``sizing`` option
+does not apply to them; see :class:`Mismatch` and :class:`ActionNoise`).
 """
 
 from __future__ import annotations
@@ -28,264 +32,32 @@ from ptrack_gym.disturbances.base import (
     fixed_direction,
     unit_vector,
 )
+from ptrack_gym.disturbances.torques import (
+    ImpulseTorque,
+    NoiseTorque,
+    PeriodicTorque,
+    StepTorque,
+)
 from ptrack_gym.errors import InvalidConfigError
+
+__all__ = [
+    "ActionNoise",
+    "ImpulseTorque",
+    "Mismatch",
+    "NoiseTorque",
+    "ObservationDelay",
+    "ObservationNoise",
+    "Payload",
+    "PeriodicTorque",
+    "Push",
+    "StepTorque",
+]
 
 
 def _impulse_energy_scale(p: FloatArray, mass: FloatArray, energy_j: float) -> float:
     """Factor c such that the momentum c·p gives an arm at rest ½(cp)ᵀM⁻¹(cp) = energy_j."""
     e1 = 0.5 * float(p @ np.linalg.solve(mass, p))
     return float(np.sqrt(energy_j / e1)) if e1 > 0 else 0.0
-
-
-@dataclass
-class ImpulseTorque(Disturbance):
-    """A joint-torque impulse held for ``duration_s`` from an onset uniform in ``onset_s``.
-
-    Size, by precedence: ``energy_j`` — the impulse changes the velocity of an arm at rest
-    at home by c·v (v a random unit vector of joint velocities) with the kinetic energy
-    ½c²vᵀMv = energy_j, i.e. τ_d = c·M(q_home)v / duration; ``accel_rad_s2`` —
-    τ_d = M(q_home)(α u); otherwise τ_d = a·τ_max ⊙ u (``fraction``), u a random unit vector.
-    The torque acts on the physics sub-steps that start inside [onset, onset + duration):
-    choose ``duration_s`` as a multiple of the physics step, or the delivered momentum is
-    rounded to whole sub-steps.
-
-    ``direction`` fixes v (or u) instead of drawing it (a unit vector is made of it), so a
-    found worst case replays exactly. ``energy_mode``: ``"home"`` (above: the budget is the
-    energy the impulse would give the arm *at rest at home*; on a moving arm the work it
-    really does, ``info["disturbance_work_j"]``, differs — 0.35 to 3.6 J for 2 J was seen)
-    or ``"delivered"``: c is chosen at the onset, from the arm's (q, q̇) and the nominal
-    M(q), so that the impulse's momentum p = c·M(q_home)v changes the arm's kinetic energy
-    by energy_j: pᵀq̇ + ½ pᵀM(q)⁻¹p = energy_j (the work of an instantaneous impulse; the
-    50-ms one delivers it up to what gravity and the controller do meanwhile).
-    """
-
-    name: ClassVar[str] = "impulse"
-    fraction: float = 0.5
-    duration_s: float = 0.05
-    onset_s: float | tuple[float, float] = (1.0, 4.0)
-    accel_rad_s2: float | None = None
-    energy_j: float | None = None
-    direction: tuple[float, ...] | None = None
-    energy_mode: str = "home"
-
-    def __post_init__(self) -> None:
-        check_non_negative(self.fraction, "fraction")
-        check_non_negative(self.onset_s, "onset_s")
-        if not (isinstance(self.duration_s, (int, float)) and self.duration_s > 0):
-            raise InvalidConfigError(f"duration_s must be > 0, got {self.duration_s!r}")
-        if self.energy_j is not None:
-            check_non_negative(self.energy_j, "energy_j")
-        if self.energy_mode not in ("home", "delivered"):
-            raise InvalidConfigError(
-                f"energy_mode must be 'home' or 'delivered', got {self.energy_mode!r}"
-            )
-        if self.energy_mode == "delivered" and self.energy_j is None:
-            raise InvalidConfigError("energy_mode='delivered' needs energy_j")
-
-    def timed_events(self) -> tuple[TimedEvent, ...]:
-        return (("onset_s", self.onset_s, self.duration_s),)
-
-    def validate(self, ctx: DisturbanceContext) -> None:
-        if self.direction is not None:
-            fixed_direction(self.direction, ctx.n, "direction")
-        if self.energy_mode == "delivered" and ctx.mass_matrix is None:
-            raise InvalidConfigError("energy_mode='delivered' needs the model's mass matrix")
-
-    def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
-        self._onset = draw(rng, self.onset_s)
-        if self.direction is not None:
-            u = fixed_direction(self.direction, ctx.n, "direction")
-        else:
-            u = unit_vector(rng, ctx.n)
-        self._sized = True
-        if self.energy_j is not None:
-            mass = ctx.home_mass_matrix
-            self._momentum_dir = mass @ u  # a: p = c·a
-            c = np.sqrt(2.0 * self.energy_j / float(u @ mass @ u))
-            self._tau = c * self._momentum_dir / self.duration_s
-            if self.energy_mode == "delivered":
-                self._mass_matrix = ctx.mass_matrix
-                self._sized = False  # c is chosen at the onset, from the arm's state
-        else:
-            self._tau = _torque_vector(self.fraction, self.accel_rad_s2, u, ctx)
-
-    def acts_during(self, t0_s: float, t1_s: float) -> bool:
-        return t0_s < self._onset + self.duration_s and self._onset < t1_s
-
-    def joint_torque(self, t_s: float, q: FloatArray, qd: FloatArray) -> FloatArray | None:
-        if self._onset <= t_s < self._onset + self.duration_s:
-            if not self._sized:
-                self._tau = self._delivered_torque(q, qd)
-                self._sized = True
-            return self._tau
-        return None
-
-    def _delivered_torque(self, q: FloatArray, qd: FloatArray) -> FloatArray:
-        """τ = c·a / T with c > 0 the root of c aᵀq̇ + ½c² aᵀM(q)⁻¹a = energy_j."""
-        a = self._momentum_dir
-        quad = float(a @ np.linalg.solve(self._mass_matrix(q), a))  # aᵀM⁻¹a > 0
-        lin = float(a @ qd)
-        c = (-lin + np.sqrt(lin * lin + 2.0 * quad * float(self.energy_j))) / quad
-        return c * a / self.duration_s
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = dict(self.__dict__)
-        state.pop("_mass_matrix", None)  # a model method: the env restores it (set_context)
-        return state
-
-    def set_context(self, ctx: DisturbanceContext) -> None:
-        """Re-attach what ``reset`` took from the context (after unpickling)."""
-        if self.energy_mode == "delivered":
-            self._mass_matrix = ctx.mass_matrix
-
-    def schedule(self) -> dict[str, Any]:
-        return {
-            "onset_s": self._onset,
-            "tau_nm": self._tau.copy(),
-            "duration_s": self.duration_s,
-            "sized": self._sized,
-        }
-
-
-def _torque_vector(
-    fraction: float, accel: float | None, direction: FloatArray, ctx: DisturbanceContext
-) -> FloatArray:
-    """a·τ_max ⊙ u (``fraction``), or M(q_home)·(α u) with α = ``accel`` (rad/s²): the
-    inertia-scaled form gives every joint a comparable acceleration, light wrists included."""
-    if accel is not None:
-        return ctx.home_mass_matrix @ (accel * direction)
-    return fraction * ctx.torque_limits_nm * direction
-
-
-def _unit_like(v: FloatArray) -> FloatArray:
-    norm = np.linalg.norm(v)
-    return v / norm if norm > 0 else v
-
-
-def _sustained_amplitude(ctx: DisturbanceContext, energy_j: float) -> float:
-    """Torque norm A (N·m) such that A · mean|q_r'| · horizon = energy_j: the most work a
-    torque of norm A can do on an arm moving along the reference for the whole horizon."""
-    return energy_j / max(ctx.mean_path_speed_rad_s * ctx.horizon_s, 1e-12)
-
-
-@dataclass
-class StepTorque(Disturbance):
-    """A constant joint torque from a random onset to the episode's end: a·τ_max ⊙ u, or
-    M(q_home)(α u) with ``accel_rad_s2``; with ``energy_j``, |τ_d| = energy_j /
-    (mean|q_r'| · horizon), the most work it can do along the reference."""
-
-    name: ClassVar[str] = "step"
-    fraction: float = 0.1
-    onset_s: float | tuple[float, float] = (1.0, 4.0)
-    accel_rad_s2: float | None = None
-    energy_j: float | None = None
-
-    def __post_init__(self) -> None:
-        check_non_negative(self.fraction, "fraction")
-        if self.energy_j is not None:
-            check_non_negative(self.energy_j, "energy_j")
-
-    def timed_events(self) -> tuple[TimedEvent, ...]:
-        return (("onset_s", self.onset_s, 0.0),)
-
-    def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
-        self._onset = draw(rng, self.onset_s)
-        self._tau = _torque_vector(self.fraction, self.accel_rad_s2, unit_vector(rng, ctx.n), ctx)
-        if self.energy_j is not None:
-            self._tau = _unit_like(self._tau) * _sustained_amplitude(ctx, self.energy_j)
-
-    def acts_during(self, t0_s: float, t1_s: float) -> bool:
-        return self._onset < t1_s
-
-    def joint_torque(self, t_s: float, q: FloatArray, qd: FloatArray) -> FloatArray | None:
-        return self._tau if t_s >= self._onset else None
-
-    def schedule(self) -> dict[str, Any]:
-        return {"onset_s": self._onset, "tau_nm": self._tau.copy()}
-
-
-@dataclass
-class PeriodicTorque(Disturbance):
-    """τ_d,j(t) = A_j sin(2π f t + φ_j), A = a·τ_max ⊙ |u| (or |M(q_home) α|u|| with
-    ``accel_rad_s2``), f drawn once per episode in ``frequency_hz``, phases φ_j uniform in
-    [0, 2π) once per episode (never redrawn). With ``energy_j``: |A| = energy_j /
-    (mean|q_r'| · horizon). ``direction`` fixes u (its absolute values weigh the joints)."""
-
-    name: ClassVar[str] = "periodic"
-    fraction: float = 0.1
-    frequency_hz: float | tuple[float, float] = (0.5, 2.0)
-    accel_rad_s2: float | None = None
-    energy_j: float | None = None
-    direction: tuple[float, ...] | None = None
-
-    def __post_init__(self) -> None:
-        check_non_negative(self.fraction, "fraction")
-        check_non_negative(self.frequency_hz, "frequency_hz")
-        if self.energy_j is not None:
-            check_non_negative(self.energy_j, "energy_j")
-
-    def validate(self, ctx: DisturbanceContext) -> None:
-        if self.direction is not None:
-            fixed_direction(self.direction, ctx.n, "direction")
-
-    def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
-        self._freq = draw(rng, self.frequency_hz)
-        u = unit_vector(rng, ctx.n)  # drawn always: the phases' draws stay where they were
-        if self.direction is not None:
-            u = fixed_direction(self.direction, ctx.n, "direction")
-        self._amp = np.abs(_torque_vector(self.fraction, self.accel_rad_s2, np.abs(u), ctx))
-        self._phase = rng.uniform(0.0, 2.0 * np.pi, ctx.n)
-        if self.energy_j is not None:
-            self._amp = _unit_like(self._amp) * _sustained_amplitude(ctx, self.energy_j)
-
-    def joint_torque(self, t_s: float, q: FloatArray, qd: FloatArray) -> FloatArray | None:
-        return self._amp * np.sin(2.0 * np.pi * self._freq * t_s + self._phase)
-
-    def schedule(self) -> dict[str, Any]:
-        return {
-            "frequency_hz": self._freq,
-            "amplitude_nm": self._amp.copy(),
-            "phase_rad": self._phase.copy(),
-        }
-
-
-@dataclass
-class NoiseTorque(Disturbance):
-    """Random joint torque, std a·τ_max per joint (or α·M_jj(q_home) with
-    ``accel_rad_s2``), drawn every physics sub-step.
-
-    ``bandwidth_hz=None``: white (independent draws). Otherwise band-limited: a first-order
-    low-pass (Ornstein–Uhlenbeck) process x ← ρx + √(1−ρ²)·σw, ρ = exp(−2π f_c dt), whose
-    stationary std is σ and whose spectrum falls off above f_c."""
-
-    name: ClassVar[str] = "noise_torque"
-    fraction: float = 0.05
-    bandwidth_hz: float | None = 5.0
-    accel_rad_s2: float | None = None
-
-    def __post_init__(self) -> None:
-        check_non_negative(self.fraction, "fraction")
-        if self.bandwidth_hz is not None and not self.bandwidth_hz > 0:
-            raise InvalidConfigError(f"bandwidth_hz must be > 0 or None, got {self.bandwidth_hz!r}")
-
-    def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
-        self._rng = rng
-        self._sigma = (
-            self.fraction * ctx.torque_limits_nm
-            if self.accel_rad_s2 is None
-            else self.accel_rad_s2 * np.diag(ctx.home_mass_matrix)
-        )
-        self._rho = (
-            0.0
-            if self.bandwidth_hz is None
-            else float(np.exp(-2.0 * np.pi * self.bandwidth_hz * ctx.physics_dt_s))
-        )
-        self._x = self._sigma * rng.standard_normal(ctx.n)
-
-    def joint_torque(self, t_s: float, q: FloatArray, qd: FloatArray) -> FloatArray | None:
-        w = self._rng.standard_normal(self._x.shape[0])
-        self._x = self._rho * self._x + np.sqrt(1.0 - self._rho**2) * self._sigma * w
-        return self._x
 
 
 @dataclass
@@ -399,7 +171,12 @@ class Mismatch(Disturbance):
     episode in ``mass_scale``; joint viscous damping and Coulomb friction as explicit plant
     torques τ_d,j = −β M_jj q̇_j − a_f M_jj tanh(q̇_j / 0.1 rad/s), M_jj = M_jj(q_home): per
     unit of joint inertia (β in 1/s, a_f in rad/s²), so light wrists are not over-damped
-    and the explicit scheme stays stable (a_f < 0.1 rad/s / dt)."""
+    and the explicit scheme stays stable (a_f < 0.1 rad/s / dt).
+
+    No ``sizing`` option: βM_jj and a_f M_jj are the joints' damping (N·m·s/rad) and
+    friction (N·m) coefficients, properties of the joint that do not change with the arm's
+    configuration, and the terms act from the episode's start, with no onset; M_jj(q_home)
+    only makes the coefficients comparable across joints and robots."""
 
     name: ClassVar[str] = "mismatch"
     mass_scale: float | tuple[float, float] = (0.8, 1.2)
@@ -443,7 +220,9 @@ class Mismatch(Disturbance):
 @dataclass
 class ActionNoise(Disturbance):
     """Actuation noise: the actuators produce τ + σ ⊙ w, σ = a·τ_max (or α·M_jj(q_home)
-    with ``accel_rad_s2``), w standard normal per control step (held over the sub-steps)."""
+    with ``accel_rad_s2``), w standard normal per control step (held over the sub-steps).
+    Always sized at home: ``actuate`` sees the command, not the state, so there is no
+    ``sizing`` option (the noise preset's joint-torque noise has one)."""
 
     name: ClassVar[str] = "action_noise"
     fraction: float = 0.02

@@ -5,7 +5,17 @@ A spec is a preset name (``"impulse"``), a ``(preset, level)`` pair, a
 ``(preset, {"energy_j": E})`` pair, a spec dict (``{"type": "impulse", "fraction": 0.3}``),
 a :class:`~ptrack_gym.disturbances.base.Disturbance` or a list of those. Level 0 is no
 disturbance, 1 nominal, higher harder; what level 1 means per robot is its profile's
-:class:`~ptrack_gym.robots.profile.DisturbanceScales`.
+:class:`~ptrack_gym.robots.profile.DisturbanceScales`. A preset's options may also be a
+mapping: ``(preset, {"level": L, "sizing": "onset"})`` or ``(preset, {"energy_j": E,
+"sizing": "onset"})`` (``level`` defaults to 1; ``level`` and ``energy_j`` exclude each
+other).
+
+``sizing`` (:data:`~ptrack_gym.disturbances.base.SIZINGS`, see
+:mod:`~ptrack_gym.disturbances.torques`) selects, for a whole preset, whether its joint
+torques are sized by M(q_home) or by M(q) where they start to act: the impulse, periodic
+and noise torques (and a step) take it; the payload, push, mismatch (its damping and
+friction are joint properties), action and observation noise have no such option and
+are built the same either way.
 """
 
 from __future__ import annotations
@@ -15,7 +25,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from ptrack_gym.disturbances.base import DISTURBANCES, Disturbance
+from ptrack_gym.disturbances.base import DISTURBANCES, Disturbance, check_sizing
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots.profile import DisturbanceScales, RobotProfile
 
@@ -136,10 +146,57 @@ def _level(name: str, arg: Any) -> float:
     return level
 
 
+def _sized(spec: Mapping[str, Any], sizing: str) -> dict[str, Any]:
+    """``spec`` with ``sizing`` added if its family has that field and it sets none."""
+    kind = spec.get("type")
+    cls = DISTURBANCES.get(kind) if isinstance(kind, str) else None
+    has_sizing = cls is not None and any(f.name == "sizing" for f in dataclasses.fields(cls))
+    return {**spec, "sizing": sizing} if has_sizing and "sizing" not in spec else dict(spec)
+
+
+def _preset_with_options(
+    name: str, options: Mapping[str, Any], sizing: str, profile: RobotProfile
+) -> list[dict[str, Any]]:
+    """The specs of ``(preset, {"level": L | "energy_j": E, "sizing": S})``."""
+    keys = set(options)
+    if not keys <= {"level", "energy_j", "sizing"} or {"level", "energy_j"} <= keys:
+        raise InvalidConfigError(
+            f"preset {name!r}: the options are 'level' or 'energy_j' (not both) and "
+            f"'sizing', got {sorted(options)}"
+        )
+    sizing = check_sizing(options.get("sizing", sizing), f"preset {name!r}: sizing")
+    if "energy_j" not in options:
+        level = _level(name, options.get("level", 1.0))
+        return [_sized(s, sizing) for s in preset_specs(name, level, profile)]
+    if name not in ENERGY_PRESETS:
+        raise InvalidConfigError(
+            f"preset {name!r} takes no energy budget; those that do: {ENERGY_PRESETS}"
+        )
+    return [
+        _sized(
+            {
+                **{k: v for k, v in s.items() if k not in ("fraction", "accel_rad_s2")},
+                "energy_j": options["energy_j"],
+            },
+            sizing,
+        )
+        for s in preset_specs(name, 1.0, profile)
+    ]
+
+
 def build_disturbances(
-    spec: DisturbanceSpec | Sequence[DisturbanceSpec] | None, profile: RobotProfile
+    spec: DisturbanceSpec | Sequence[DisturbanceSpec] | None,
+    profile: RobotProfile,
+    sizing: str = "home",
 ) -> list[Disturbance]:
-    """Turn a user spec into disturbance objects (see the module docstring for the forms)."""
+    """Turn a user spec into disturbance objects (see the module docstring for the forms).
+
+    ``sizing`` (``"home"`` or ``"onset"``) is given to every family built here that has a
+    ``sizing`` field and whose spec sets none (a preset's option or a spec dict's own
+    ``sizing`` wins); a :class:`Disturbance` object is used as it is. An unknown value
+    raises :class:`InvalidConfigError` listing the choices.
+    """
+    check_sizing(sizing)
     if spec is None:
         return []
     if isinstance(spec, (str, Mapping, Disturbance)) or (
@@ -154,26 +211,19 @@ def build_disturbances(
     for item in items:
         if isinstance(item, Disturbance):
             out.append(item)
-        elif isinstance(item, str):
-            out.extend(from_spec(s) for s in preset_specs(item, 1.0, profile))
+            continue
+        specs: list[dict[str, Any]]
+        if isinstance(item, str):
+            specs = [_sized(s, sizing) for s in preset_specs(item, 1.0, profile)]
         elif isinstance(item, tuple) and len(item) == 2 and isinstance(item[0], str):
             name, arg = item
             if isinstance(arg, Mapping):
-                if set(arg) != {"energy_j"}:
-                    raise InvalidConfigError(
-                        f"preset {name!r}: the only option is 'energy_j', got {sorted(arg)}"
-                    )
-                if name not in ENERGY_PRESETS:
-                    raise InvalidConfigError(
-                        f"preset {name!r} takes no energy budget; those that do: {ENERGY_PRESETS}"
-                    )
-                for s in preset_specs(name, 1.0, profile):
-                    s = {k: v for k, v in s.items() if k not in ("fraction", "accel_rad_s2")}
-                    out.append(from_spec({**s, "energy_j": arg["energy_j"]}))
+                specs = _preset_with_options(name, arg, sizing, profile)
             else:
-                out.extend(from_spec(s) for s in preset_specs(name, _level(name, arg), profile))
+                specs = [_sized(s, sizing) for s in preset_specs(name, _level(name, arg), profile)]
         elif isinstance(item, Mapping):
-            out.append(from_spec(item))
+            specs = [_sized(item, sizing)]
         else:
             raise InvalidConfigError(f"cannot build a disturbance from {item!r}")
+        out.extend(from_spec(s) for s in specs)
     return out

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ptrack_gym.disturbances import Disturbance, DisturbanceSpec, build_disturbances
+from ptrack_gym.disturbances.base import check_sizing
 from ptrack_gym.envs.rewards import (
     DEFAULT_EFFORT_SCALE,
     DEFAULT_KERNEL_SCALES_RAD,
@@ -77,6 +78,7 @@ class EnvConfig:
     kernel_effort_scale: float = DEFAULT_EFFORT_SCALE
     max_path_distance_rad: float | None = None
     disturbance: DisturbanceSpec | Sequence[DisturbanceSpec] | None = None
+    disturbance_sizing: str = "home"
     horizon_s: float = 10.0
     info_energy: bool = False
     render_mode: str | None = None
@@ -151,7 +153,12 @@ class EnvConfig:
             raise InvalidConfigError(
                 f"render_mode must be None or one of {RENDER_MODES}, got {self.render_mode!r}"
             )
-        set_(self, "disturbances", build_disturbances(self.disturbance, self.profile))
+        check_sizing(self.disturbance_sizing, "disturbance_sizing")
+        set_(
+            self,
+            "disturbances",
+            build_disturbances(self.disturbance, self.profile, self.disturbance_sizing),
+        )
         for d in self.disturbances:  # onsets that fit the episode, before any simulator
             d.check_horizon(self.horizon_s)
 

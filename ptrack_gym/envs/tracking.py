@@ -113,7 +113,9 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
     ``reward``, ``kernel_weights``, ``kernel_scales_rad``, ``kernel_effort_scale``;
     ``max_path_distance_rad`` (None: no off-path termination);
     ``disturbance`` (see :mod:`ptrack_gym.disturbances`: a preset name,
-    ``(preset, level)``, specs or a list); ``horizon_s`` (the nominal episode length the
+    ``(preset, level)``, specs or a list); ``disturbance_sizing`` ("home": joint-torque
+    disturbances sized by M(q_home); "onset": by M(q) where they start to act, see
+    :mod:`ptrack_gym.disturbances.torques`); ``horizon_s`` (the nominal episode length the
     disturbances draw onsets and energy budgets for, 10 s; a disturbance whose latest
     onset + duration + 0.5 s of recovery does not fit in it is refused); ``info_energy`` (False);
     ``render_mode`` ("rgb_array" works headless); ``gui``. Unknown arguments raise
@@ -143,6 +145,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         kernel_effort_scale: float = DEFAULT_EFFORT_SCALE,
         max_path_distance_rad: float | None = None,
         disturbance: DisturbanceSpec | Sequence[DisturbanceSpec] | None = None,
+        disturbance_sizing: str = "home",
         horizon_s: float = 10.0,
         info_energy: bool = False,
         render_mode: str | None = None,
@@ -155,7 +158,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             unstable_penalty=unstable_penalty, reward=reward, kernel_weights=kernel_weights,
             kernel_scales_rad=kernel_scales_rad, kernel_effort_scale=kernel_effort_scale,
             max_path_distance_rad=max_path_distance_rad, disturbance=disturbance,
-            horizon_s=horizon_s, info_energy=info_energy, render_mode=render_mode, gui=gui,
+            disturbance_sizing=disturbance_sizing, horizon_s=horizon_s, info_energy=info_energy,
+            render_mode=render_mode, gui=gui,
         )  # fmt: skip
         self.robot_profile = profile = config.profile
         self.render_mode = config.render_mode
