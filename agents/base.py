@@ -109,3 +109,15 @@ class HasResidualFeatures(Protocol):
     def residual_features(self, max_speed_rad_s: float) -> FeatureBlock:
         """The controller's feature block (v_max bounds the velocity entries)."""
         ...
+
+
+@runtime_checkable
+class ObservesAppliedTorque(Protocol):
+    """A controller whose state depends on the torque actually applied (a disturbance
+    observer): a wrapper that adds to its torque (the residual wrapper) reports the sum, so
+    the addition is not mistaken for an external torque."""
+
+    def applied_torque(self, tau_nm: FloatArray, dt: float) -> None:
+        """The torque τ (N·m), shape (n,), applied for the ``dt`` seconds after the last
+        ``step`` (replacing the torque that step returned)."""
+        ...

@@ -21,7 +21,16 @@ from typing import Any, Protocol
 
 import yaml
 
-from agents import computed_torque, passivity, pd_gravity, slotine_li
+from agents import (
+    adaptive_slotine_li,
+    computed_torque,
+    observer_computed_torque,
+    passivity,
+    path_following,
+    pd_gravity,
+    pid_gravity,
+    slotine_li,
+)
 from agents.base import ControlContext, Controller
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots.profile import RobotProfile
@@ -82,6 +91,12 @@ ENTRIES: Mapping[str, ControllerEntry] = _table(
     ControllerEntry("computed_torque", computed_torque.build, computed_torque),
     ControllerEntry("pd_gravity", pd_gravity.build, pd_gravity),
     ControllerEntry("slotine_li", slotine_li.build, slotine_li),
+    ControllerEntry("pid_gravity", pid_gravity.build, pid_gravity),
+    ControllerEntry(
+        "computed_torque_observer", observer_computed_torque.build, observer_computed_torque
+    ),
+    ControllerEntry("adaptive_slotine_li", adaptive_slotine_li.build, adaptive_slotine_li),
+    ControllerEntry("computed_torque_path", path_following.build, path_following),
 )
 
 #: The controller names :func:`make_controller` accepts, in the table's order.

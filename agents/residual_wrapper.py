@@ -80,7 +80,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.envs.registration import EnvSpec
 
-from agents.base import Controller, FloatArray
+from agents.base import Controller, FloatArray, ObservesAppliedTorque
 from agents.policy import torque_to_action
 from agents.registry import make_controller
 from agents.residual_features import PRIOR_ERROR_FEATURES, ControllerFeatures, prior_error_names
@@ -295,6 +295,8 @@ class ResidualWrapper(
             tau_res = (gate * self.scale_nm) * a_eff  # (n,) N·m; γ = 1 exactly without a gate
         else:  # M(q) γ α a: the acceleration α a (rad/s²) on the nominal model (cached M)
             tau_res = u.model.mass_matrix(q) @ ((gate * self.scale_accel_rad_s2) * a_eff)
+        if isinstance(self.controller, ObservesAppliedTorque):  # e.g. a momentum observer
+            self.controller.applied_torque(tau_base + tau_res, u.dt)
         inner_action = torque_to_action(tau_base + tau_res, self.torque_limits_nm)
         obs, reward, terminated, truncated, info = self.env.step(inner_action)
         if self.action_penalty > 0.0:

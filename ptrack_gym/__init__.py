@@ -37,7 +37,17 @@ for _profile in ROBOTS.values():
 #: (``agents.registry.CONTROLLER_NAMES``: tests/test_zoo.py keeps the two equal). Registered
 #: here with a string entry point, so ``gym.make`` of a residual id works after ``import
 #: ptrack_gym`` alone: ``agents`` is imported only when such an env is built.
-RESIDUAL_BASES = ("passivity", "passivity_paper", "computed_torque", "pd_gravity", "slotine_li")
+RESIDUAL_BASES = (
+    "passivity",
+    "passivity_paper",
+    "computed_torque",
+    "pd_gravity",
+    "slotine_li",
+    "pid_gravity",
+    "computed_torque_observer",
+    "adaptive_slotine_li",
+    "computed_torque_path",
+)
 for _profile in ROBOTS.values():
     for _base in RESIDUAL_BASES:
         _camel = "".join(part.capitalize() for part in _base.split("_"))

@@ -164,7 +164,8 @@ def test_features_are_bounded_float32_and_named(make_env, base: str) -> None:
     assert space.shape == (n_inner + len(env.feature_names),)
     expected = {
         "passivity": 6 + 4, "passivity_paper": 6 + 4, "computed_torque": 6, "pd_gravity": 6,
-        "slotine_li": 8,
+        "slotine_li": 8, "pid_gravity": 6, "computed_torque_observer": 6,
+        "adaptive_slotine_li": 8, "computed_torque_path": 6,
     }  # fmt: skip
     assert len(env.feature_names) == expected[base]
     obs, _ = env.reset(seed=2)

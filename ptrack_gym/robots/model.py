@@ -172,6 +172,27 @@ class PinocchioModel:
             out[k] = pin.computeGeneralizedGravity(model, data, qk)
         return out
 
+    def joint_torque_regressor(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        """Y(q, q̇, q̈), shape (n, 10·nb), with τ = M q̈ + C(q, q̇) q̇ + g = Y θ for θ =
+        :meth:`dynamic_parameters`: linear in θ (Pinocchio's joint-torque regressor; nb the
+        bodies the joints move). Units: N·m per unit of each parameter."""
+        return self._pin.computeJointTorqueRegressor(
+            self._model,
+            self._data,
+            np.ascontiguousarray(q, dtype=np.float64),
+            np.ascontiguousarray(qd, dtype=np.float64),
+            np.ascontiguousarray(qdd, dtype=np.float64),
+        ).copy()
+
+    def dynamic_parameters(self) -> FloatArray:
+        """θ, shape (10·nb,): per moved body, in joint order, its ten standard parameters
+        (m, m c_x, m c_y, m c_z, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz) at the joint frame
+        (kg, kg·m, kg·m²), fixed links merged (``Inertia.toDynamicParameters``)."""
+        inertias = self._model.inertias
+        return np.concatenate(
+            [inertias[i].toDynamicParameters() for i in range(1, self._model.njoints)]
+        )
+
     def close(self) -> None:
         """Nothing to release (for symmetry with :class:`BulletModel`)."""
 

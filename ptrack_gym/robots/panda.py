@@ -137,8 +137,12 @@ PROFILE = RobotProfile(
         # bench/baseline_gain_study.py with the franka_ros inertials: the largest ω of the
         # sweep with no clipped torque from rest 0.1 rad off the path (ω = 20 clips).
         "computed_torque": {"omega": 14.0},
+        "computed_torque_observer": {"omega": 14.0},
+        "computed_torque_path": {"omega": 14.0},
         "pd_gravity": {"omega": 14.0},
+        "pid_gravity": {"omega": 14.0},
         "slotine_li": {"omega": 14.0},
+        "adaptive_slotine_li": {"omega": 14.0},
     },
     convergence_target_s=30.0,
     camera_target_m=(0.0, 0.0, 0.5),

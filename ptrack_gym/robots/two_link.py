@@ -135,8 +135,12 @@ PROFILE = RobotProfile(
     controller_gains={
         "passivity": {"omega": 20.0, "omega_s": 20.0, "rho": 10.0, "lam": 2.0, "m_floor": 0.1},
         "computed_torque": {"omega": 20.0},
+        "computed_torque_observer": {"omega": 20.0},
+        "computed_torque_path": {"omega": 20.0},
         "pd_gravity": {"omega": 20.0},
+        "pid_gravity": {"omega": 20.0},
         "slotine_li": {"omega": 20.0},
+        "adaptive_slotine_li": {"omega": 20.0},
     },
     convergence_target_s=20.0,
     camera_target_m=(0.3, 0.0, 0.0),

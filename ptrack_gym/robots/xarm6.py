@@ -97,8 +97,12 @@ PROFILE = RobotProfile(
         # bench/baseline_gain_study.py: the largest ω of the sweep with no clipped torque
         # from rest 0.1 rad off the path (ω = 28 clips computed torque's, 20 the others').
         "computed_torque": {"omega": 20.0},
+        "computed_torque_observer": {"omega": 20.0},
+        "computed_torque_path": {"omega": 20.0},
         "pd_gravity": {"omega": 14.0},
+        "pid_gravity": {"omega": 14.0},
         "slotine_li": {"omega": 14.0},
+        "adaptive_slotine_li": {"omega": 14.0},
     },
     convergence_target_s=30.0,
     camera_target_m=(0.2, 0.0, 0.35),
