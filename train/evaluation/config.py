@@ -38,7 +38,7 @@ from ptrack_gym.metrics import METRIC_NAMES
 from ptrack_gym.robots import profile_for_env_id
 from train.common import arguments
 from train.evaluation.envs import check_env_kwargs, env_kwargs
-from train.evaluation.episode import SB3_PREFIX, EpisodeSettings, Task, path_kwargs
+from train.evaluation.episode import SB3_PREFIX, EpisodeSettings, Task, settings_kwargs
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "evaluate" / "main.yml"
 
@@ -74,6 +74,9 @@ class EvalConfig:
     path than the one the RL entrants were trained on is a held-out check."""
     path_seed: int | None = None
     """Seed of a "random" path (the same path for every episode of the sweep)."""
+    disturbance_sizing: str = "home"
+    """Joint-torque disturbances sized by M(q_home) ("home") or by M(q) where they start to
+    act ("onset"; the env's ``disturbance_sizing``): does the ranking survive?"""
     reference: str = "computed_torque"
     """Controller the paired differences are taken against."""
     gains: str = "default"
@@ -146,7 +149,7 @@ class EvalConfig:
         if not (np.isfinite(self.episode_s) and self.episode_s > 0):
             raise InvalidConfigError("episode_s must be positive")
         steps = max(1, round(self.episode_s * self.control_hz)) if self.control_hz > 0 else 1
-        path = path_kwargs(self.settings())
+        path = settings_kwargs(self.settings())
         for d in self.disturbances:
             for level in [0.0] if d == "none" else self.levels:
                 text = None if d == "none" else f"{d}:{level}"
@@ -207,6 +210,7 @@ class EvalConfig:
             start=self.start,
             path=self.path,
             path_seed=self.path_seed,
+            disturbance_sizing=self.disturbance_sizing,
             failure_distance_rad=self.failure_distance_rad,
             recovery_threshold_rad=self.recovery_threshold_rad,
             gains=self.gains,

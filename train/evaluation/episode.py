@@ -76,6 +76,9 @@ class EpisodeSettings:
     """The env's reference path family ("default": the path the RL entrants trained on)."""
     path_seed: int | None = None
     """Seed of a "random" path."""
+    disturbance_sizing: str = "home"
+    """How joint-torque disturbances are sized: by M(q_home) ("home") or by M(q) where they
+    start to act ("onset"); the env's ``disturbance_sizing``."""
 
     def controller_gains(self) -> str | dict[str, Any]:
         """The ``gains`` argument of ``make_controller``."""
@@ -149,9 +152,13 @@ def _env_key(settings: EpisodeSettings) -> EpisodeSettings:
     return dataclasses.replace(settings, gains="default")
 
 
-def path_kwargs(settings: EpisodeSettings) -> dict[str, Any]:
-    """The env arguments of the sweep's reference path (``path``, ``path_seed``)."""
-    return {"path": settings.path, "path_seed": settings.path_seed}
+def settings_kwargs(settings: EpisodeSettings) -> dict[str, Any]:
+    """The env arguments the sweep's settings fix: its reference path (``path``,
+    ``path_seed``) and, where not the default, ``disturbance_sizing``."""
+    extra: dict[str, Any] = {"path": settings.path, "path_seed": settings.path_seed}
+    if settings.disturbance_sizing != "home":
+        extra["disturbance_sizing"] = settings.disturbance_sizing
+    return extra
 
 
 def _env(settings: EpisodeSettings, disturbance: str, level: float) -> gym.Env[Any, Any]:
@@ -166,7 +173,7 @@ def _env(settings: EpisodeSettings, disturbance: str, level: float) -> gym.Env[A
                 steps,
                 settings.start,
                 _disturbance_text(disturbance, level),
-                extra=path_kwargs(settings),
+                extra=settings_kwargs(settings),
             ),
         ),
     )
@@ -197,7 +204,7 @@ def _sb3_env_and_policy(
             round(settings.episode_s * derived["control_hz"]),
             settings.start,
             _disturbance_text(disturbance, level),
-            extra=path_kwargs(settings),
+            extra=settings_kwargs(settings),
             residual_kwargs={  # the gate acts on the torque; the penalty only on the reward
                 **residual_wrapper_kwargs(c),
                 **deploy_safeguards(sb3_files(controller)[0]),  # deploy.yml's gate wins
