@@ -246,7 +246,7 @@ def _report(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
             cfg = EvalConfig(**{**saved, "out": str(folder), "video": False})
             if not args.no_rewrite:
                 finish(cfg, folder, show=False)
-            print(f"{folder / 'report.md'}: mean {cfg.metric} (rad; bold: lowest)\n")
+            print(f"{folder / 'report.md'}:\n")
             print(headline_of(folder, cfg.metric) + "\n")
     return 0
 
@@ -255,9 +255,9 @@ def headline_of(folder: Path, metric: str) -> str:
     """The headline table of an evaluation results folder (its ``summary.csv``)."""
     import pandas as pd
 
-    from train.evaluation.results import headline_table
+    from train.evaluation.results import headline_tables
 
-    return headline_table(pd.read_csv(folder / "summary.csv"), metric)
+    return headline_tables(pd.read_csv(folder / "summary.csv"), metric)
 
 
 # -- commands with their own argument lists -----------------------------------------------

@@ -278,6 +278,19 @@ def headline_table(summary: pd.DataFrame, metric: str) -> str:
     return "\n".join(lines)
 
 
+def headline_tables(summary: pd.DataFrame, metric: str) -> str:
+    """:func:`headline_table` of ``metric`` and, where the summary has it, of the other
+    metric a report states beside it (path distance ↔ time-indexed error), each titled."""
+    names = {"path_dist_rms": "path distance", "time_err_rms": "time-indexed error"}
+    other = "time_err_rms" if metric != "time_err_rms" else "path_dist_rms"
+    blocks = [f"Mean {names.get(metric, metric)} ({metric}, rad; bold: lowest)\n\n"
+              + headline_table(summary, metric)]  # fmt: skip
+    if f"{other}_mean" in summary.columns and other != metric:
+        blocks.append(f"Mean {names[other]} ({other}, rad; bold: lowest)\n\n"
+                      + headline_table(summary, other))  # fmt: skip
+    return "\n\n".join(blocks)
+
+
 def _idle_notes(summary: pd.DataFrame) -> dict[str, str]:
     """The conditions of a summary in which some episodes saw no disturbance (its
     ``no_disturbance_n``; none for a summary made before that column), each with a note:

@@ -34,7 +34,7 @@ from train.evaluation.results import (
     EpisodeWriter,
     done_keys,
     format_table,
-    headline_table,
+    headline_tables,
     load_frame,
     read_episodes,
     summarize,
@@ -270,8 +270,8 @@ def finish(
     if pool is not None:  # no more work: the workers exit after their plots (the caller's
         pool.shutdown(wait=False)  # shutdown joins them)
     if show:
-        print(f"\n{out / 'report.md'}: mean {cfg.metric} (rad; bold: lowest)\n")
-        print(headline_table(summary, cfg.metric))
+        print(f"\n{out / 'report.md'}:\n")
+        print(headline_tables(summary, cfg.metric))
     for fut in plots:
         fut.result()  # a failed plot raises here
     if cfg.video:
