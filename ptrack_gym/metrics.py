@@ -77,7 +77,10 @@ def recovery_time(
 
 
 #: The per-step series of an :class:`EpisodeRecord` (optional ones may be None).
-_PER_STEP = ("t_s", "q", "qd", "s_ref", "tau_nm", "path_distance", "path_s", "tracking_error")
+_PER_STEP = (
+    "t_s", "q", "qd", "s_ref", "tau_nm", "path_distance", "path_s", "tracking_error",
+    "tau_ff_nm",
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -97,6 +100,21 @@ class EpisodeRecord:
     path_distance: FloatArray | None = None  # (T,) info["path_distance"], if recorded (rad)
     path_s: FloatArray | None = None  # (T,) info["path_s"], the nearest s, if recorded (s)
     tracking_error: FloatArray | None = None  # (T,) info["tracking_error"], if recorded (rad)
+    #: (T, n) the nominal feed-forward of step k along the controller's own reference,
+    #: :func:`feedforward_torques` (N·m); None for a policy without a phase (a learned one)
+    tau_ff_nm: FloatArray | None = None
+
+
+def feedforward_torques(model: RobotModel, path: ReferencePath, s: FloatArray) -> FloatArray:
+    """τ_ff,k = ID(q_r(s_k), q_r'(s_k), q_r''(s_k)) (N·m), (T, n): the nominal model's inverse
+    dynamics M(q_r) q_r'' + C(q_r, q_r') q_r' + g(q_r) along the reference at the phases
+    ``s`` (T,) (s) at the nominal phase speed ṡ = 1 — the torque that holds the nominal arm
+    on the reference, which every model-based law sends when it tracks exactly."""
+    q_r, qd_r, qdd_r = path.evaluate(np.asarray(s, dtype=np.float64))
+    out = np.empty((len(q_r), model.n))
+    for k in range(len(q_r)):
+        out[k] = model.inverse_dynamics(q_r[k], qd_r[k], qdd_r[k])
+    return out
 
 
 def episode_metrics(
@@ -119,6 +137,10 @@ def episode_metrics(
     * ``tau_dyn_rms_frac`` — the RMS over steps and joints of (τ − g(q))/τ_max, g the nominal
       gravity torque at the state: the effort beyond holding the arm up, which is most of
       ``tau_rms_frac`` and the same for every controller (the effort budgets and fronts);
+    * ``tau_fb_rms_frac`` — the RMS over steps and joints of (τ − τ_ff)/τ_max, τ_ff the
+      record's nominal feed-forward along the controller's own reference
+      (:func:`feedforward_torques`): the *feedback* effort, ~0 for an exact model tracking
+      exactly, what a gain buys (the tuner's effort budget); NaN without ``tau_ff_nm``;
     * ``controller_work_j`` — Σ τ_kᵀ (q_{k+1} − q_k), ``disturbance_work_j``;
     * ``failed`` — 1 if unstable or the path distance ever exceeded
       ``failure_distance_rad`` (failed episodes are kept and counted, never dropped).
@@ -169,6 +191,11 @@ def episode_metrics(
     many = getattr(model, "gravity_many", None)  # a batch evaluation, where the model has one
     gravity = many(q) if many is not None else np.array([model.gravity(qk) for qk in q])
     dyn_frac = (record.tau_nm - gravity) / record.torque_limits_nm
+    fb_rms = (
+        rms((record.tau_nm - record.tau_ff_nm) / record.torque_limits_nm)
+        if record.tau_ff_nm is not None
+        else float("nan")
+    )
     dq = np.diff(q, axis=0)
     work = float(np.sum(record.tau_nm[1:] * dq)) if len(q) > 1 else 0.0
     # A blown-up episode never recovered (and its padded series has no time stamps).
@@ -188,6 +215,7 @@ def episode_metrics(
         "recovery_s": recovery,
         "tau_rms_frac": rms(frac),
         "tau_dyn_rms_frac": rms(dyn_frac),
+        "tau_fb_rms_frac": fb_rms,
         "tau_peak_frac": float(np.max(frac)),
         "saturation_frac": float(np.mean(np.any(frac >= 0.999, axis=1))),
         "controller_work_j": work,
@@ -206,6 +234,7 @@ METRIC_NAMES: Sequence[str] = (
     "recovery_s",
     "tau_rms_frac",
     "tau_dyn_rms_frac",
+    "tau_fb_rms_frac",
     "tau_peak_frac",
     "saturation_frac",
     "controller_work_j",

@@ -1,5 +1,6 @@
 """``ptrack tune``: a tiny study runs, resumes, refuses seeds the test config uses,
-and the gains it saves are the ones ``gains="tuned"`` builds."""
+and the gains it saves are the ones ``gains="tuned"`` builds (the fight's seeds, boxes,
+widening and feedback effort: ``tests/test_tune_fight.py``)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from agents import computed_torque, make_controller
 from agents.base import ControlContext
 from ptrack_gym.errors import InvalidConfigError
 from train.cli import run_command
-from train.studies.tune import TuneConfig, load_config, tune
+from train.studies.tune import TuneConfig, load_config, study_name, tune
 
 ENV = "ptrack_gym/TwoLinkTrack-v0"
 
@@ -27,11 +28,14 @@ def main(argv: list[str]) -> int:
 
 
 def tiny(out: Path, **kw: object) -> TuneConfig:
-    """Two trials of computed torque on the two-link: 1-s episodes at 250 Hz."""
+    """Two trials of computed torque on the two-link (one study seed, the fewest trials
+    deciding): 1-s episodes at 250 Hz."""
     base: dict[str, object] = dict(
         env_id=ENV,
         controllers=["computed_torque"],
         trials=2,
+        trials_per_rate=1,
+        study_seeds=[0],
         startup_trials=1,
         validation_seeds=[1000],
         disturbances=["none", "periodic"],
@@ -50,7 +54,7 @@ def _trials(out: Path) -> list:
     from optuna.storages.journal import JournalFileBackend
 
     storage = JournalStorage(JournalFileBackend(str(out / "optuna.journal")))
-    return optuna.load_study(study_name="computed_torque", storage=storage).trials
+    return optuna.load_study(study_name=study_name("computed_torque", 0), storage=storage).trials
 
 
 def test_tiny_study_runs_resumes_and_its_saved_gains_load(tmp_path, monkeypatch):
@@ -94,16 +98,16 @@ def test_tiny_study_runs_resumes_and_its_saved_gains_load(tmp_path, monkeypatch)
 
 def test_an_interrupted_trial_is_failed_and_replaced_on_resume(tmp_path):
     out = tmp_path / "study"
-    tune(tiny(out, trials=1), progress=False)
+    tune(tiny(out), progress=False)  # two trials: max(2, 1 per rate x 2 rates)
     import optuna
     from optuna.storages import JournalStorage
     from optuna.storages.journal import JournalFileBackend
 
     storage = JournalStorage(JournalFileBackend(str(out / "optuna.journal")))
-    optuna.load_study(study_name="computed_torque", storage=storage).ask()  # never told
-    tune(tiny(out, trials=2), resume=True, progress=False)
+    optuna.load_study(study_name=study_name("computed_torque", 0), storage=storage).ask()
+    tune(tiny(out, trials=3), resume=True, progress=False)
     states = [t.state.name for t in _trials(out)]
-    assert states == ["COMPLETE", "FAIL", "COMPLETE"]
+    assert states == ["COMPLETE", "COMPLETE", "FAIL", "COMPLETE"]
 
 
 def test_validation_seeds_that_the_test_config_uses_are_refused(tmp_path):

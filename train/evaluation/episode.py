@@ -19,6 +19,14 @@ every other controller. A model trained to decide every k steps (``decision_ever
 on the unrepeated env behind :class:`~agents.hold.HeldActionPolicy`, so every env step is
 recorded. Either way the episode is one loop over a policy's ``predict``.
 
+The feedback effort ``tau_fb_rms_frac`` (:func:`ptrack_gym.metrics.episode_metrics`) needs
+the controller's own reference phase: :func:`rollout` reads a model-based controller's phase
+s after each step (its ``diagnostics()["s"]``, through :func:`phase_reader`) and records
+the nominal feed-forward τ_ff,k = ID(q_r(s_k), q_r'(s_k), q_r''(s_k)) of the env's model and
+path at s_k = s − dt, the phase step k's torque was computed at (exact for the clocked
+laws, whose phase advances by dt a step; within dt·|ṡ − 1| for the passivity law's). A
+learned policy (``sb3:``) has no phase: its feedback effort is NaN.
+
 Imports are kept to what an episode needs: torch and SB3 only when a model is evaluated.
 """
 
@@ -27,6 +35,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any, Protocol
 
@@ -35,11 +44,15 @@ import numpy as np
 from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker, TimeLimit
 
 import ptrack_gym  # noqa: F401  (registers the envs)
+from agents.base import Controller
 from agents.hold import HeldActionPolicy
+from agents.passivity import PassivityController
+from agents.path_following import PathFollowingController
 from agents.policy import ControllerPolicy
 from agents.registry import make_controller
+from agents.time_indexed import TimeIndexedController
 from ptrack_gym.errors import ControllerDivergedError
-from ptrack_gym.metrics import EpisodeRecord, episode_metrics
+from ptrack_gym.metrics import EpisodeRecord, episode_metrics, feedforward_torques
 from train.evaluation.envs import build_env, env_kwargs, residual_wrapper_kwargs
 
 #: Columns identifying an episode, in the CSV's order.
@@ -218,6 +231,23 @@ def _sb3_env_and_policy(
     return _cached(_SB3_CACHE, (controller, _env_key(settings), disturbance, level), build)
 
 
+def phase_reader(controller: Controller) -> Callable[[], float]:
+    """A function returning ``controller.diagnostics()["s"]``, the controller's reference
+    phase after its last step (s), read without the rest of the diagnostics (a Slotine–Li
+    law's cost a mass matrix, ~20% of an episode when read every step): the clock of a
+    time-indexed law, the inner clock of the path-following one, s of the passivity law's
+    (s, ṡ, σ); ``diagnostics()`` itself for any other controller."""
+    if isinstance(controller, TimeIndexedController):
+        clock = controller.clock
+        return lambda: float(clock.s)  # type: ignore[arg-type]
+    if isinstance(controller, PathFollowingController):
+        inner = controller.inner.clock
+        return lambda: float(inner.s)  # type: ignore[arg-type]
+    if isinstance(controller, PassivityController):
+        return lambda: controller.state.s
+    return lambda: float(controller.diagnostics()["s"])
+
+
 def _first_impulse_end(schedule: list[dict[str, Any]]) -> float | None:
     ends = [d["onset_s"] + d["duration_s"] for d in schedule if d["type"] in ("impulse", "push")]
     return min(ends) if ends else None
@@ -233,7 +263,9 @@ def rollout(
     """One episode of ``policy`` on ``env`` from ``env.reset(seed=reset_seed)`` until it
     terminates or is truncated: the :class:`EpisodeRecord` and, with ``keep_trace``, the
     policy's storage terms per step (the passivity controller's H + W_r(σ), H_r, φ, ψ, E;
-    NaN for other policies). A controller that diverges (a non-finite torque,
+    NaN for other policies). The record of a :class:`~agents.policy.ControllerPolicy` holds
+    the nominal feed-forward along the controller's phase (``tau_ff_nm``, module docstring);
+    any other policy's none. A controller that diverges (a non-finite torque,
     :class:`~ptrack_gym.errors.ControllerDivergedError`) ends the episode as unstable at
     the step it would have taken. The one episode loop of the package, for anything with SB3's
     ``predict``.
@@ -250,6 +282,8 @@ def rollout(
     }
     unstable, info = False, {}
     limit = _lean_limit(env, policy) if lean else None
+    phase = phase_reader(policy.controller) if isinstance(policy, ControllerPolicy) else None
+    phases: list[float] = []
     if limit is not None:  # the same calls, in the same order, without the layers around
         assert isinstance(policy, ControllerPolicy)
         obs, _ = u.reset(seed=reset_seed)
@@ -285,6 +319,8 @@ def rollout(
         rows["d"].append(info["path_distance"])
         rows["path_s"].append(info["path_s"])
         rows["e"].append(info["tracking_error"])
+        if phase is not None:
+            phases.append(phase())
         if keep_trace:
             diag: dict[str, float] = getattr(policy, "last_diagnostics", {})
             rows["energy"].append(
@@ -308,6 +344,9 @@ def rollout(
         path_distance=np.array(rows["d"]),
         path_s=np.array(rows["path_s"]),
         tracking_error=np.array(rows["e"]),
+        tau_ff_nm=feedforward_torques(u.model, u.path, np.array(phases) - u.dt).reshape(-1, n)
+        if phase is not None
+        else None,
     )
     return record, (np.array(rows["energy"]) if keep_trace else None)
 

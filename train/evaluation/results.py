@@ -4,7 +4,9 @@
 as the episode finishes, so an interrupted sweep loses at most the episodes in flight.
 :func:`read_episodes` validates the file before a resume and refuses, with the line
 number, a file with a foreign header, a row with the wrong number of fields, a truncated
-last line or a duplicated episode.
+last line or a duplicated episode. A file written before a metric of
+:data:`LATER_COLUMNS` existed loads for reports (that metric NaN) but is refused for a
+resume, naming the missing column: its new rows would not fit its header.
 
 :func:`summarize` aggregates per controller × disturbance × level: mean and interquartile
 mean (IQM) with 95% bootstrap confidence intervals (``scipy.stats.bootstrap``, percentile
@@ -36,6 +38,8 @@ from train.common.statistics import bootstrap_ci, iqm
 from train.evaluation.episode import KEY_COLUMNS, label
 
 COLUMNS: tuple[str, ...] = (*KEY_COLUMNS, *METRIC_NAMES, "steps", "wall_s")
+#: Metric columns added after results were first written (``tau_fb_rms_frac``: issue 37).
+LATER_COLUMNS: tuple[str, ...] = ("tau_fb_rms_frac",)
 
 
 class CorruptResultsError(PtrackError, ValueError):
@@ -46,9 +50,12 @@ def read_episodes(
     path: Path,
     columns: Sequence[str] = COLUMNS,
     key_columns: Sequence[str] = KEY_COLUMNS,
+    fill_missing: bool = False,
 ) -> list[dict[str, str]]:
     """The rows of an ``episodes.csv``, validated (see the module docstring); ``columns``
-    and ``key_columns`` are another study's (e.g. ``train.studies.rates``)."""
+    and ``key_columns`` are another study's (e.g. ``train.studies.rates``). A file without
+    some of :data:`LATER_COLUMNS` gets them as "nan" with ``fill_missing`` (to read and
+    report), else is refused (to resume)."""
     columns, key_columns = tuple(columns), tuple(key_columns)
     if not path.exists():
         return []
@@ -61,15 +68,26 @@ def read_episodes(
     rows = list(csv.reader(text.splitlines()))
     if not rows:
         return []
-    if tuple(rows[0]) != columns:
+    header = tuple(rows[0])
+    missing = [c for c in columns if c not in header]
+    older = set(missing) <= set(LATER_COLUMNS) and header == tuple(
+        c for c in columns if c not in missing
+    )  # the expected header but for columns added since
+    if not older:
         raise CorruptResultsError(f"{path}: header {rows[0]} is not the expected {list(columns)}")
+    if missing and not fill_missing:
+        raise CorruptResultsError(
+            f"{path} was written before the column(s) {missing} existed: it still loads "
+            "for reports, but cannot be resumed (new rows have more fields); rerun it "
+            "with --force, or into another --out"
+        )
     out, seen = [], set()
     for lineno, fields in enumerate(rows[1:], start=2):
-        if len(fields) != len(columns):
+        if len(fields) != len(header):
             raise CorruptResultsError(
-                f"{path}, line {lineno}: {len(fields)} fields, expected {len(columns)}"
+                f"{path}, line {lineno}: {len(fields)} fields, expected {len(header)}"
             )
-        row = dict(zip(columns, fields, strict=True))
+        row = {**dict(zip(header, fields, strict=True)), **dict.fromkeys(missing, "nan")}
         key = tuple(row[k] for k in key_columns)
         if key in seen:
             raise CorruptResultsError(f"{path}, line {lineno}: episode {key} appears twice")
@@ -114,7 +132,7 @@ def load_frame(path: Path) -> pd.DataFrame:
     their key (controller, disturbance, level, seed, episode): the file holds them in the
     order they finished, which parallel runners change from run to run, and the bootstrap
     intervals computed from the frame must not depend on it."""
-    df = pd.DataFrame(read_episodes(path), columns=list(COLUMNS))
+    df = pd.DataFrame(read_episodes(path, fill_missing=True), columns=list(COLUMNS))
     for col in (*METRIC_NAMES, "wall_s", "level"):
         df[col] = df[col].astype(float)  # parses "nan" and repr() floats exactly
     for col in ("steps", "seed", "episode"):

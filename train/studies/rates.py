@@ -209,7 +209,8 @@ def run_study(
 
 def load_frame(path: Path) -> pd.DataFrame:
     """``episodes.csv`` of a rate study as a DataFrame (numeric columns parsed)."""
-    df = pd.DataFrame(read_episodes(path, COLUMNS, KEY_COLUMNS), columns=list(COLUMNS))
+    rows = read_episodes(path, COLUMNS, KEY_COLUMNS, fill_missing=True)
+    df = pd.DataFrame(rows, columns=list(COLUMNS))
     for col in (*METRIC_NAMES, "wall_s", "control_hz"):
         df[col] = df[col].astype(float)
     for col in ("refused", "steps", "path_seed", "seed"):

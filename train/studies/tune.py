@@ -1,158 +1,99 @@
 """Equal-budget tuning of a model-based controller's gains: ``ptrack tune``.
 
-One Optuna study per robot × controller, the same settings for every controller:
+A *fight*: one Optuna study per robot × controller × study seed, the same rules for every
+controller, so that a ranking of tuned controllers is a ranking of laws, not of luck:
 
-* parameters — the controller's gain rates (``agents.registry.TUNABLE``: a bandwidth and a
-  damping or phase rate each, four gain rates for the passivity law), made absolute by the
+* parameters — the controller's gain rates (``agents.registry.TUNABLE``: bandwidths ω (rad/s),
+  damping ratios ζ, phase and adaptation rates; k_c rates for controller c), searched in its
+  box (rate → [lo, hi, log]; ``boxes`` overrides it per rate) and made absolute by the
   controller's own ``gains_from_rates`` exactly as its defaults are;
-* sampler — TPE, seeded, ``startup_trials`` random trials first; ``trials`` per study;
-* objective — the geometric mean of the path-distance RMS (rad) over
-  ``validation_seeds`` × ``disturbances`` (each preset at level 1, started on the path):
-  scale-free, so the undisturbed case (~1e-4 rad) counts as much as a payload (~1e-1 rad)
-  in relative terms, where an arithmetic mean would tune for the payload alone; a failed
-  episode (unstable, or the path distance past ``failure_distance_rad``) counts with its
-  padded RMS, so failures are penalised;
-* constraint — the mean dynamic effort (``tau_dyn_rms_frac``: the RMS of (τ − g(q))/τ_max,
-  the effort beyond holding the arm up, which is the same for every controller) must stay
-  ≤ the budget: ``effort_budget`` if given, else ``effort_factor`` × what
-  ``effort_reference`` (computed torque) uses with its default gains on the same validation
-  episodes — one budget per robot, the same for every controller; TPE samples with the
-  constraint and the best *feasible* trial wins;
+* budget — N_c = max(``trials``, ``trials_per_rate`` · k_c) trials per study: a law with
+  more rates gets proportionally more (TPE's needs grow with the dimension); the first
+  ``startup_trials`` are random;
+* seeds — one study per seed of ``study_seeds`` (≥ 3 for a fight); TPE is seeded by
+  (study seed, round, trial index), so a resumed study asks what an uninterrupted one does;
+* objective — J = exp(mean_e log max(d_e, 10⁻¹²)) (rad), the geometric mean over the
+  validation episodes e ∈ V = ``validation_seeds`` × ``disturbances`` (each preset at level
+  1, started on the path) of the path-distance RMS d_e: scale-free, so the undisturbed case
+  (~1e-4 rad) counts as much as a payload (~1e-1 rad) in relative terms, where an
+  arithmetic mean would tune for the payload alone; a failed episode (unstable, or the path
+  distance past ``failure_distance_rad``) counts with its padded RMS;
+* constraint — the mean effort E = (1/|V|) Σ_e m_e of ``effort_metric`` m must stay ≤ the
+  budget B: ``effort_budget`` if given, else ``effort_factor`` × E of ``effort_reference``
+  (computed torque) with its default gains on the same episodes — one budget per robot.
+  m = ``tau_fb_rms_frac`` (default): the RMS over steps and joints of (τ − τ_ff)/τ_max,
+  τ_ff = ID(q_r(s), q_r'(s), q_r''(s)) the nominal inverse dynamics along the controller's
+  own reference phase s at ṡ = 1 — the feedback part of the torque, which a gain buys
+  (the feed-forward is the same for every model-based law and made τ_dyn's budget hardly
+  bind); ``tau_dyn_rms_frac``, the RMS of (τ − g(q))/τ_max, is still selectable. TPE
+  samples with the constraint; only feasible trials can win;
+* winner — per seed its best feasible trial; the gains saved are the best of those over the
+  seeds (the lowest J: every seed scores on the same validation episodes). The seeds'
+  disagreement is reported: spread = (max − min)/median of the per-seed bests, and for the
+  fight the controllers' ranking per seed and Kendall's τ between seeds
+  (:mod:`train.studies.tune_fight`, ``fight.md``);
+* boxes — a winning rate within 5 % of a bound of its box (in log space for log-scaled
+  rates, :mod:`train.studies.tune_boxes`) is reported (``on_bound``). With
+  ``widen_on_bound``, that seed reruns as a new study — its earlier trials copied in as
+  history, N_c new trials — with the bound widened (÷ or × 3 in log space, ± the box width in
+  linear space, never to the rate's floor), at most ``max_widenings`` times. A bound is not
+  widened where moving the rate there changes nothing the controller does (its torques at a
+  probe state are equal: ``gains_from_rates`` caps the rate at the control rate, the
+  per-sample cap), nor past a floor; such a rate is reported as "capped" or "at the floor";
 * validation seeds must not meet the test seeds of ``test_config`` (the main job's): the
   tuned gains are chosen on other episodes than those they are judged on.
 
-Resumable (``--resume``: the study lives in ``<out>/optuna.journal``), the episodes of a
-trial run in ``workers`` processes, progress is printed per trial. ``--save`` writes the
-best gain rates with the study's settings to ``agents/tuned/<robot>-<controller>.yml``, which
-``make_controller(..., gains="tuned")`` and every entry point's ``gains: tuned`` read.
-Needs the ``tune`` extra (Optuna).
+Studies live in ``<out>/optuna.journal`` as ``<controller>.seed<k>`` (round 0) and
+``<controller>.seed<k>.widen<r>``; ``--resume`` continues them (a larger budget, more seeds
+or widenings are allowed; a study of the one-seed protocol is refused). Outputs:
+``<out>/<controller>.yml`` (the winner, every seed's best, the boxes) and ``<out>/fight.md``.
+``--save`` writes the winner's rates with the study's record to
+``agents/tuned/<robot>-<controller>.yml`` (``rates:`` and ``study:``), which
+``make_controller(..., gains="tuned")`` and every entry point's ``gains: tuned`` read;
+``ptrack tune --table`` lists them with their seeds, spread and rates on a bound, and per
+robot the ranking stability across the seeds its controllers share. The objective is
+pluggable (:class:`TrialObjective`): the tests tune cheap functions. Needs the ``tune``
+extra (Optuna).
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
 import math
-from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml
 
 import ptrack_gym  # noqa: F401  (registers the envs)
-from agents.registry import TUNABLE, TUNED_DIR
-from ptrack_gym.disturbances import PRESETS
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
-from train.common import arguments
-from train.common.runs import open_run, worker_count, worker_pool
-from train.evaluation.episode import EpisodeSettings, Task, run_episode
+from train.common.runs import CONFIG_FILE, has_results, open_run, worker_count, worker_pool
+from train.studies.tune_config import EFFORT_METRICS, TuneConfig, load_config
+from train.studies.tune_fight import fight_markdown, tuned_table
+from train.studies.tune_study import (
+    EpisodeObjective,
+    SeedStudies,
+    TrialObjective,
+    TrialScore,
+    study_name,
+    winner,
+)
 
-DEFAULT_TEST_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "evaluate" / "main.yml"
-
-
-@dataclass
-class TuneConfig:
-    """A tuning study (the fields of ``--config`` / ``--set``)."""
-
-    env_id: str = "ptrack_gym/IiwaTrack-v0"
-    """Registered env id."""
-    controllers: list[str] = field(default_factory=lambda: ["passivity"])
-    """Controllers to tune, one study each (keys of ``agents.registry.TUNABLE``)."""
-    trials: int = 40
-    """Trials per study (the same for every controller)."""
-    startup_trials: int = 10
-    """Random trials before TPE models the objective."""
-    seed: int = 0
-    """Seed of the sampler."""
-    validation_seeds: list[int] = field(default_factory=lambda: [1000, 1001, 1002])
-    """Seeds of the validation episodes (reset seed 10 000·seed + episode, as in evaluation)."""
-    disturbances: list[str] = field(
-        default_factory=lambda: ["none", "impulse", "periodic", "payload", "noise"]
-    )
-    """Conditions of the objective: each preset at level 1 ("none" undisturbed)."""
-    episode_s: float = 6.0
-    """Episode length (s)."""
-    control_hz: float = 1000.0
-    """Control rate (Hz)."""
-    effort_budget: float | None = None
-    """Largest mean dynamic effort (``tau_dyn_rms_frac``) a feasible trial may use; None:
-    ``effort_factor`` × the reference controller's with its default gains."""
-    effort_reference: str = "computed_torque"
-    """The controller whose default effort sets the budget (when ``effort_budget`` is None)."""
-    effort_factor: float = 1.25
-    """The budget as a multiple of the reference's default effort."""
-    failure_distance_rad: float = 0.5
-    """An episode fails past this path distance (rad), or when unstable."""
-    test_config: str = str(DEFAULT_TEST_CONFIG)
-    """The evaluation config whose seeds the validation seeds must avoid."""
-    workers: int = 0
-    """Worker processes (0: the usable cores)."""
-    out: str = "results/tune"
-    """Output folder (a subfolder per controller)."""
-
-    def validate(self) -> None:
-        """Raise :class:`InvalidConfigError` naming the first bad field, before any episode."""
-        profile_for_env_id(self.env_id)
-        bad = [c for c in self.controllers if c not in TUNABLE]
-        if not self.controllers or bad:
-            raise InvalidConfigError(
-                f"controllers must be some of {sorted(TUNABLE)}, got {self.controllers}"
-            )
-        unknown = [d for d in self.disturbances if d not in PRESETS]
-        if not self.disturbances or unknown:
-            raise InvalidConfigError(f"disturbances must be presets of {list(PRESETS)}")
-        if self.trials < 1 or not 0 <= self.startup_trials <= self.trials:
-            raise InvalidConfigError(
-                f"trials must be >= 1 and 0 <= startup_trials <= trials (the random trials "
-                f"TPE starts from are part of the budget), got trials {self.trials}, "
-                f"startup_trials {self.startup_trials}"
-            )
-        if not self.validation_seeds:
-            raise InvalidConfigError("validation_seeds must not be empty")
-        if self.effort_budget is not None and not (
-            math.isfinite(self.effort_budget) and self.effort_budget > 0
-        ):
-            raise InvalidConfigError(f"effort_budget must be positive, got {self.effort_budget}")
-        if self.effort_reference not in TUNABLE or not self.effort_factor > 0:
-            raise InvalidConfigError("effort_reference must be a controller, effort_factor > 0")
-        if not self.episode_s > 0:
-            raise InvalidConfigError("episode_s must be positive")
-        test = test_reset_seeds(Path(self.test_config))
-        overlap = sorted(set(self.reset_seeds()) & test)
-        if overlap:
-            raise InvalidConfigError(
-                f"validation seeds {self.validation_seeds} give reset seeds {overlap[:5]} that "
-                f"the test config {self.test_config} uses: tune on other episodes"
-            )
-
-    def reset_seeds(self) -> list[int]:
-        """The validation episodes' reset seeds (one episode per seed)."""
-        return [Task("x", "none", 0.0, s, 0).reset_seed for s in self.validation_seeds]
-
-    def tasks(self, controller: str) -> list[Task]:
-        return [
-            Task(controller, d, 0.0 if d == "none" else 1.0, s, 0)
-            for d in self.disturbances
-            for s in self.validation_seeds
-        ]
-
-
-def test_reset_seeds(config: Path) -> set[int]:
-    """Every reset seed of the evaluation config ``config``."""
-    from train.evaluation.config import load_config
-
-    if not config.exists():
-        raise InvalidConfigError(f"test_config {config} does not exist")
-    cfg = load_config(config, [], validate=False)  # its seeds, whatever else it needs
-    return {t.reset_seed for t in cfg.tasks()}
-
-
-def _run(args: tuple[Task, EpisodeSettings]) -> dict[str, Any]:
-    return run_episode(*args)[0]
+__all__ = [
+    "EFFORT_METRICS",
+    "TrialObjective",
+    "TrialScore",
+    "TuneConfig",
+    "load_config",
+    "study_name",
+    "tune",
+    "tuned_table",
+]
+#: Settings a resume may change: a larger budget, more seeds, more widenings.
+FREE_FIELDS = ("trials", "trials_per_rate", "study_seeds", "widen_on_bound", "max_widenings")
 
 
 def tune(
@@ -161,18 +102,21 @@ def tune(
     save_dir: Path | None = None,
     progress: bool = True,
     force: bool = False,
+    objective: TrialObjective | None = None,
 ) -> dict[str, dict[str, Any]]:
-    """Run (or continue) one study per controller; return {controller: best result}.
+    """Run (or continue) the studies of every controller and seed; return {controller:
+    result}, a result holding the winner over the seeds and every seed's best (``seeds``).
 
-    ``save_dir`` (``--save``: :data:`agents.registry.TUNED_DIR`) receives the best gain rates
-    of each controller as ``<robot>-<controller>.yml``, with the study's settings; a file
-    already there (the shipped gains) is replaced only with ``force``, which also starts a
-    study over in an ``out`` that holds files.
+    ``save_dir`` (``--save``: :data:`agents.registry.TUNED_DIR`) receives each winner as
+    ``<robot>-<controller>.yml``; a file already there (the shipped gains) is replaced only
+    with ``force``, which also starts the studies over in an ``out`` that holds files.
+    ``objective`` replaces the validation episodes (tests).
 
     Raises:
         InvalidConfigError: a bad config (before any episode), an existing study without
             ``resume`` or ``force``, a tuned-gains file ``save_dir`` holds without
-            ``force``, a resumed study with other settings, or no trial within the budget.
+            ``force``, a resumed study with other settings or of the one-seed protocol, or
+            no feasible trial in any seed.
     """
     try:
         import optuna
@@ -191,46 +135,75 @@ def tune(
                 f"--save would replace {', '.join(map(str, shipped))}: add --force to "
                 "replace the tuned gains, or tune without --save"
             )
+    _refuse_one_seed_study(Path(cfg.out), resume)
     settings_dict = _settings(cfg)
     run = open_run(
-        cfg.out, "optuna.journal", settings_dict, resume=resume, force=force, free=("trials",),
+        cfg.out, "optuna.journal", settings_dict, resume=resume, force=force, free=FREE_FIELDS,
         saved_required=False,
     )  # fmt: skip
-    out, journal = run.out, run.results
+    out = run.out
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    storage = JournalStorage(JournalFileBackend(str(journal)))
+    storage = JournalStorage(JournalFileBackend(str(run.results)))
     results: dict[str, dict[str, Any]] = {}
-    with worker_pool(worker_count(cfg.workers), "spawn") as pool:
+    with contextlib.ExitStack() as stack:
+        if objective is None:
+            pool = stack.enter_context(worker_pool(worker_count(cfg.workers), "spawn"))
+            episodes = EpisodeObjective(cfg, pool)
+            stack.callback(episodes.close)
+            objective = episodes
         budget = cfg.effort_budget
         if budget is None:
-            budget = cfg.effort_factor * _default_effort(pool, cfg)
+            reference = objective.score(cfg.effort_reference, None).effort
+            if not (math.isfinite(reference) and reference > 0):
+                raise InvalidConfigError(
+                    f"{cfg.effort_reference}'s default {cfg.effort_metric} is {reference}: "
+                    "no budget; give effort_budget"
+                )
+            budget = cfg.effort_factor * reference
             if progress:
-                print(f"effort budget {budget:.4f} ({cfg.effort_factor} x "
-                      f"{cfg.effort_reference}'s default effort)", flush=True)  # fmt: skip
+                print(f"effort budget {budget:.4f} ({cfg.effort_factor} x {cfg.effort_reference}'s "
+                      f"default {cfg.effort_metric})", flush=True)  # fmt: skip
+        study = SeedStudies(optuna, storage, objective, cfg, budget, progress)
         for controller in cfg.controllers:
-            best = _study(optuna, storage, pool, cfg, controller, budget, progress)
+            seeds = {seed: study.seed_result(controller, seed) for seed in cfg.study_seeds}
+            best = winner(cfg, controller, seeds, budget)
             results[controller] = best
-            (out / f"{controller}.yml").write_text(yaml.safe_dump(best, sort_keys=False))
+            (out / f"{controller}.yml").write_text(_yaml(best))
             if save_dir is not None:
                 save_dir.mkdir(parents=True, exist_ok=True)
-                study = {**settings_dict, **best, "rates": dict(best["rates"])}  # no YAML alias
-                record = {"rates": dict(best["rates"]), "study": study}
+                study_record = {**settings_dict, **best, "rates": dict(best["rates"])}
+                record = {"rates": dict(best["rates"]), "study": study_record}
                 path = save_dir / f"{robot}-{controller}.yml"
                 path.write_text(
                     f"# Tuned by ptrack tune ({datetime.date.today()}); see "
-                    "train/studies/tune.py for the objective.\n"
-                    + yaml.safe_dump(record, sort_keys=False)
+                    "train/studies/tune.py for the protocol.\n" + _yaml(record)
                 )
+    title = f"Tuning fight: {robot}, {cfg.control_hz:g} Hz, seeds {list(cfg.study_seeds)}"
+    (out / "fight.md").write_text(fight_markdown(results, title))
     return results
 
 
-def _default_effort(pool: ProcessPoolExecutor, cfg: TuneConfig) -> float:
-    """The reference controller's mean dynamic effort with its default gains."""
-    settings = EpisodeSettings(
-        cfg.env_id, cfg.episode_s, cfg.control_hz, "on_path", cfg.failure_distance_rad, 0.01
-    )
-    rows = pool.map(_run, [(t, settings) for t in cfg.tasks(cfg.effort_reference)])
-    return float(np.mean([r["tau_dyn_rms_frac"] for r in rows]))
+class _NoAliases(yaml.SafeDumper):
+    def ignore_aliases(self, data: Any) -> bool:
+        return True
+
+
+def _yaml(data: Any) -> str:
+    """``data`` as block YAML in its own key order, a shared object written out each time."""
+    return yaml.dump(data, Dumper=_NoAliases, sort_keys=False)
+
+
+def _refuse_one_seed_study(out: Path, resume: bool) -> None:
+    """A journal of the one-seed protocol (no ``study_seeds`` in its config) is not resumed:
+    its studies are named per controller and its effort was ``tau_dyn_rms_frac``."""
+    saved = out / CONFIG_FILE
+    if resume and has_results(out / "optuna.journal") and saved.exists():
+        if "study_seeds" not in (yaml.safe_load(saved.read_text()) or {}):
+            raise InvalidConfigError(
+                f"{out} holds a study of the one-seed protocol (one study per controller, "
+                "effort tau_dyn_rms_frac): this version cannot resume it; tune into another "
+                "--out, or --force to start over"
+            )
 
 
 def _settings(cfg: TuneConfig) -> dict[str, Any]:
@@ -238,113 +211,3 @@ def _settings(cfg: TuneConfig) -> dict[str, Any]:
     for k in ("workers", "out", "controllers"):
         d.pop(k)
     return d
-
-
-def _study(
-    optuna: Any,
-    storage: Any,
-    pool: ProcessPoolExecutor,
-    cfg: TuneConfig,
-    controller: str,
-    budget: float,
-    progress: bool,
-) -> dict[str, Any]:
-    space = TUNABLE[controller]
-
-    sampler = optuna.samplers.TPESampler(seed=cfg.seed, n_startup_trials=cfg.startup_trials)
-    study = optuna.create_study(
-        study_name=controller, storage=storage, sampler=sampler, direction="minimize",
-        load_if_exists=True,
-    )  # fmt: skip
-    running = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,))
-    for stale in running:  # an interrupted trial
-        study.tell(stale.number, state=optuna.trial.TrialState.FAIL)
-    complete = optuna.trial.TrialState.COMPLETE
-    done = len(study.get_trials(deepcopy=False, states=(complete,)))
-    tasks = cfg.tasks(controller)
-    while done < cfg.trials:
-        # TPE rebuilds its model from the history at every ask: a sampler seeded by
-        # (seed, trial index) makes a resumed study ask exactly what an uninterrupted one
-        # does (one seeded once would repeat its first random startup draws)
-        study.sampler = optuna.samplers.TPESampler(
-            seed=int(np.random.SeedSequence([cfg.seed, done]).generate_state(1)[0]),
-            n_startup_trials=cfg.startup_trials,
-        )
-        trial = study.ask()
-        rates = {
-            name: trial.suggest_float(name, low, high, log=log)
-            for name, (low, high, log) in space.items()
-        }
-        settings = EpisodeSettings(
-            cfg.env_id, cfg.episode_s, cfg.control_hz, "on_path", cfg.failure_distance_rad,
-            0.01, gains=tuple(sorted(rates.items())),
-        )  # fmt: skip
-        rows = list(pool.map(_run, [(t, settings) for t in tasks]))
-        error = float(np.exp(np.mean(np.log([max(r["path_dist_rms"], 1e-12) for r in rows]))))
-        effort = float(np.mean([r["tau_dyn_rms_frac"] for r in rows]))
-        failures = int(sum(r["failed"] for r in rows))
-        trial.set_user_attr("effort", effort)
-        trial.set_user_attr("failures", failures)
-        trial.set_constraint("effort", effort - budget)  # feasible when <= 0
-        study.tell(trial, error)
-        done += 1
-        if progress:
-            feasible = "feasible" if effort <= budget else "over budget"
-            print(
-                f"{controller} trial {done}/{cfg.trials}: error {error:.3e} rad, effort "
-                f"{effort:.4f} ({feasible}), failures {failures}, "
-                + ", ".join(f"{k}={v:.3g}" for k, v in rates.items()),
-                flush=True,
-            )
-    trials = study.get_trials(deepcopy=False, states=(complete,))[: cfg.trials]
-    feasible = [t for t in trials if t.user_attrs["effort"] <= budget]
-    if not feasible:
-        raise InvalidConfigError(f"{controller}: no trial met the effort budget {budget:.4g}")
-    best = min(feasible, key=lambda t: t.value)
-    return {
-        "controller": controller,
-        "rates": {k: float(v) for k, v in best.params.items()},
-        "error_rad": float(best.value),
-        "effort": float(best.user_attrs["effort"]),
-        "failures": int(best.user_attrs["failures"]),
-        "trial": int(best.number),
-        "trials": len(trials),
-        "feasible_trials": len(feasible),
-        "effort_budget": float(budget),
-        # the trials' own durations: right across interruptions and resumes
-        "wall_s": round(
-            sum((t.datetime_complete - t.datetime_start).total_seconds() for t in trials), 1
-        ),
-    }
-
-
-def tuned_table(tuned_dir: Path = TUNED_DIR) -> str:
-    """Markdown: every tuned file's gain rates next to the robot's defaults, with the study's
-    validation error, effort (budget) and wall time (``ptrack tune --table``)."""
-    from agents.registry import RATE_MODULES, effective_rates
-    from ptrack_gym.robots import robot_profile
-
-    lines = [
-        "| robot | controller | tuned gain rates | default gain rates | validation error (rad) "
-        "| effort (budget) | feasible trials | wall (s) |",
-        "|---|---|---|---|---:|---|---:|---:|",
-    ]
-    for path in sorted(tuned_dir.glob("*.yml")):
-        data = yaml.safe_load(path.read_text())
-        robot, controller = path.stem.split("-", 1)
-        study = data["study"]
-        space = RATE_MODULES[controller].TUNABLE
-        default = effective_rates(robot_profile(robot), controller)
-        tuned_text = ", ".join(f"{k} {data['rates'][k]:.3g}" for k in space)
-        default_text = ", ".join(f"{k} {default[k]:.3g}" for k in space)
-        lines.append(
-            f"| {robot} | {controller} | {tuned_text} | {default_text} "
-            f"| {study['error_rad']:.3g} | {study['effort']:.4f} ({study['effort_budget']:.4f}) "
-            f"| {study['feasible_trials']}/{study['trials']} | {study['wall_s']:.0f} |"
-        )
-    return "\n".join(lines)
-
-
-def load_config(path: Path | None, overrides: Sequence[str]) -> TuneConfig:
-    """The config of a YAML file, with ``key=value`` overrides; unknown keys raise."""
-    return arguments.load_config(TuneConfig, path, overrides, validate=False)
