@@ -16,7 +16,7 @@ import gymnasium
 
 from ptrack_gym.robots import ROBOTS
 
-__version__ = "0.3.1"
+__version__ = "0.4.0"
 
 #: Default episode length (s) at the default control rate of 1 kHz.
 EPISODE_S = 10.0
