@@ -109,11 +109,15 @@ def feedforward_torques(model: RobotModel, path: ReferencePath, s: FloatArray) -
     """τ_ff,k = ID(q_r(s_k), q_r'(s_k), q_r''(s_k)) (N·m), (T, n): the nominal model's inverse
     dynamics M(q_r) q_r'' + C(q_r, q_r') q_r' + g(q_r) along the reference at the phases
     ``s`` (T,) (s) at the nominal phase speed ṡ = 1 — the torque that holds the nominal arm
-    on the reference, which every model-based law sends when it tracks exactly."""
-    q_r, qd_r, qdd_r = path.evaluate(np.asarray(s, dtype=np.float64))
-    out = np.empty((len(q_r), model.n))
-    for k in range(len(q_r)):
-        out[k] = model.inverse_dynamics(q_r[k], qd_r[k], qdd_r[k])
+    on the reference, which every model-based law sends when it tracks exactly. A phase
+    that is not finite (a diverged controller's) gives NaN there."""
+    s = np.asarray(s, dtype=np.float64)
+    out = np.full((len(s), model.n), np.nan)
+    ok = np.flatnonzero(np.isfinite(s))
+    if ok.size:
+        q_r, qd_r, qdd_r = path.evaluate(s[ok])
+        for j, k in enumerate(ok):
+            out[k] = model.inverse_dynamics(q_r[j], qd_r[j], qdd_r[j])
     return out
 
 

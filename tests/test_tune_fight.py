@@ -410,3 +410,24 @@ def test_the_table_shows_seeds_spread_bounds_and_the_ranking_stability(tmp_path)
     md = (tmp_path / "study" / "fight.md").read_text()
     assert "Kendall's tau" in md and "seed 0:" in md
     assert md == fight_markdown(results, md.splitlines()[0].removeprefix("# "))
+
+
+def test_the_feedforward_of_a_diverged_phase_is_nan_not_a_warning() -> None:
+    """A controller whose phase ran to ±inf or NaN (a diverged episode) gets NaN feed-forward
+    rows there, and finite ones where its phase was finite — no numpy warning."""
+    import warnings
+
+    import gymnasium as gym
+
+    from ptrack_gym.metrics import feedforward_torques
+
+    env = gym.make("ptrack_gym/TwoLinkTrack-v0")
+    u = env.unwrapped
+    s = np.array([0.1, np.inf, -np.inf, np.nan, 0.3])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tau = feedforward_torques(u.model, u.path, s)
+    assert np.isnan(tau[1:4]).all() and np.isfinite(tau[[0, 4]]).all()
+    q, qd, qdd = u.path.evaluate(0.3)
+    np.testing.assert_allclose(tau[4], u.model.inverse_dynamics(q, qd, qdd), rtol=1e-12)
+    env.close()

@@ -63,13 +63,16 @@ def final_table(df: pd.DataFrame, runs: Sequence[Run], resamples: int) -> str:
     disturbance (rows of ``df``'s disturbances, in order). Every run is taken at the same
     budget (:func:`final_steps`); Δ is the paired difference to the group's reference
     (:func:`reference_of`) with a bootstrap 95 % CI over the pooled (run, episode) pairs
-    (it does not carry the seed-to-seed variance: read it next to the per-seed column),
-    and ×ref the ratio of the pooled means."""
+    (it does not carry the seed-to-seed variance: read it next to the per-seed column; it
+    is unadjusted for the table's other comparisons: a description of the effect, not a
+    test — the tests are the study's ``report.md``, ``train.common.paired_tests``), and ×ref
+    the ratio of the pooled means."""
     steps = final_steps(runs)
     algo = str(runs[0].config["algo"]).upper()
     lines = [
         "| disturbance | policy | path-dist RMS per seed (rad) | pooled mean (rad) | "
-        "Δ vs reference alone, 95% CI | ×ref | time-indexed RMSE (rad) | failures |",
+        "Δ vs reference alone, 95% CI (unadjusted, not a test) | ×ref | time-indexed RMSE (rad) "
+        "| failures |",
         "| --- | --- | --- | ---: | --- | ---: | ---: | ---: |",
     ]
     key = ["disturbance", "level", "seed", "episode"]
