@@ -324,11 +324,12 @@ def write_report(
     )
     tables = {m: condition_table(df, m) for m in metrics}
     table = tables[metric]
-    rivals = pd.DataFrame()
-    if len(compared) and compared.groupby(["disturbance", "level", "controller"]).size().min() > 1:
+    try:  # the same refusal as _comparisons: fewer than 2 pairs, nothing to test
         rivals = pd.concat([rival_comparisons(compared, m, focus, resamples) for m in metrics])
-        if len(rivals):
-            rivals.to_csv(out / "rivals.csv", index=False, float_format="%.17g")
+    except TooFewPairsError:
+        rivals = pd.DataFrame()
+    if len(rivals):
+        rivals.to_csv(out / "rivals.csv", index=False, float_format="%.17g")
     verdicts = [
         verdict_paragraph(comparisons[m], tables[m][_compared(tables[m], idle)], reference, m)
         if len(compared)

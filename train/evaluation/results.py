@@ -36,6 +36,7 @@ from ptrack_gym.errors import PtrackError
 from ptrack_gym.metrics import METRIC_NAMES
 from train.common.statistics import bootstrap_ci, iqm
 from train.evaluation.episode import KEY_COLUMNS, label
+from train.evaluation.verdict import report_metrics, words
 
 COLUMNS: tuple[str, ...] = (*KEY_COLUMNS, *METRIC_NAMES, "steps", "wall_s")
 #: Metric columns added after results were first written (``tau_fb_rms_frac``: issue 37).
@@ -299,14 +300,11 @@ def headline_table(summary: pd.DataFrame, metric: str) -> str:
 def headline_tables(summary: pd.DataFrame, metric: str) -> str:
     """:func:`headline_table` of ``metric`` and, where the summary has it, of the other
     metric a report states beside it (path distance ↔ time-indexed error), each titled."""
-    names = {"path_dist_rms": "path distance", "time_err_rms": "time-indexed error"}
-    other = "time_err_rms" if metric != "time_err_rms" else "path_dist_rms"
-    blocks = [f"Mean {names.get(metric, metric)} ({metric}, rad; bold: lowest)\n\n"
-              + headline_table(summary, metric)]  # fmt: skip
-    if f"{other}_mean" in summary.columns and other != metric:
-        blocks.append(f"Mean {names[other]} ({other}, rad; bold: lowest)\n\n"
-                      + headline_table(summary, other))  # fmt: skip
-    return "\n\n".join(blocks)
+    columns = [c.removesuffix("_mean") for c in summary.columns if c.endswith("_mean")]
+    return "\n\n".join(
+        f"Mean {words(m)} ({m}, rad; bold: lowest)\n\n" + headline_table(summary, m)
+        for m in report_metrics(metric, columns)
+    )
 
 
 def _idle_notes(summary: pd.DataFrame) -> dict[str, str]:
