@@ -117,10 +117,52 @@ def test_validation_seeds_that_the_test_config_uses_are_refused(tmp_path):
     assert not (tmp_path / "optuna.journal").exists()  # refused before anything ran
 
 
+def test_validation_paths_run_every_seed_and_disturbance_on_each_path(tmp_path):
+    cfg = tiny(tmp_path, validation_paths=[9001, 9002], validation_seeds=[1000, 1001])
+    episodes = cfg.episodes("computed_torque", "default")
+    assert len(episodes) == 2 * 2 * 2  # paths x seeds x disturbances
+    by_path = {s.path_seed: [t.key() for t, s2 in episodes if s2 == s] for _, s in episodes}
+    assert sorted(by_path) == [9001, 9002]
+    assert by_path[9001] == by_path[9002]  # the same episodes on each path
+    assert all(s.path == "random" for _, s in episodes)
+    # no validation paths: the default path, as before
+    assert {s.path for _, s in tiny(tmp_path).episodes("computed_torque", "default")} == {
+        "default"
+    }
+
+
+def test_validation_paths_that_the_test_config_runs_on_are_refused(tmp_path):
+    test = tmp_path / "test.yml"
+    test.write_text(f"env_id: {ENV}\ncontrollers: [computed_torque]\npath: random\n"
+                    "path_seed: 7\nseeds: 2\n")  # fmt: skip
+    with pytest.raises(InvalidConfigError, match=r"validation paths \[7\] are test paths"):
+        tune(tiny(tmp_path / "o", validation_paths=[3, 7], test_config=str(test)), progress=False)
+    # on other paths, the test's reset seeds may repeat: the episodes differ by their path
+    cfg = tiny(tmp_path / "o", validation_paths=[3], validation_seeds=[1], test_config=str(test))
+    cfg.validate()
+
+
+def test_a_validation_path_seed_without_an_admissible_path_is_refused(tmp_path, monkeypatch):
+    import ptrack_gym.paths as paths
+
+    real = paths.random_multisine
+
+    def picky(profile, rng, *args, **kw):  # seed 5 gives no admissible path
+        if rng.bit_generator.state == np.random.default_rng(5).bit_generator.state:
+            raise paths.InvalidPathError("no admissible random path for two_link in 200 draws")
+        return real(profile, rng, *args, **kw)
+
+    monkeypatch.setattr(paths, "random_multisine", picky)
+    with pytest.raises(InvalidConfigError, match="validation path seed 5: no admissible"):
+        tune(tiny(tmp_path, validation_paths=[4, 5]), progress=False)
+    assert not (tmp_path / "optuna.journal").exists()
+
+
 @pytest.mark.parametrize(
     ("field", "value", "match"),
     [
         ("controllers", ["residual"], "controllers"),
+        ("validation_paths", [3, 3], "validation_paths"),
         ("controllers", [], "controllers"),
         ("disturbances", ["wind"], "disturbances"),
         ("trials", 0, "trials"),

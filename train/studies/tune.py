@@ -13,8 +13,9 @@ controller, so that a ranking of tuned controllers is a ranking of laws, not of 
 * seeds — one study per seed of ``study_seeds`` (≥ 3 for a fight); TPE is seeded by
   (study seed, round, trial index), so a resumed study asks what an uninterrupted one does;
 * objective — J = exp(mean_e log max(d_e, 10⁻¹²)) (rad), the geometric mean over the
-  validation episodes e ∈ V = ``validation_seeds`` × ``disturbances`` (each preset at level
-  1, started on the path) of the path-distance RMS d_e: scale-free, so the undisturbed case
+  validation episodes e ∈ V = ``validation_paths`` × ``validation_seeds`` × ``disturbances``
+  (each preset at level 1, started on the path; random admissible paths, or the default
+  path when ``validation_paths`` is empty) of the path-distance RMS d_e: scale-free, so the undisturbed case
   (~1e-4 rad) counts as much as a payload (~1e-1 rad) in relative terms, where an
   arithmetic mean would tune for the payload alone; a failed episode (unstable, or the path
   distance past ``failure_distance_rad``) counts with its padded RMS;
@@ -40,8 +41,9 @@ controller, so that a ranking of tuned controllers is a ranking of laws, not of 
   widened where moving the rate there changes nothing the controller does (its torques at a
   probe state are equal: ``gains_from_rates`` caps the rate at the control rate, the
   per-sample cap), nor past a floor; such a rate is reported as "capped" or "at the floor";
-* validation seeds must not meet the test seeds of ``test_config`` (the main job's): the
-  tuned gains are chosen on other episodes than those they are judged on.
+* validation paths must not be test paths of ``test_config`` (the main job's), and on the
+  same path the validation seeds must not meet its test seeds: the tuned gains are chosen
+  on other episodes than those they are judged on.
 
 Studies live in ``<out>/optuna.journal`` as ``<controller>.seed<k>`` (round 0) and
 ``<controller>.seed<k>.widen<r>``; ``--resume`` continues them (a larger budget, more seeds

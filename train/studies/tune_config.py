@@ -14,7 +14,7 @@ from ptrack_gym.disturbances import PRESETS
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
 from train.common import arguments
-from train.evaluation.episode import Task
+from train.evaluation.episode import EpisodeSettings, Task
 from train.studies.tune_boxes import Box, check_boxes, resolve_box
 
 DEFAULT_TEST_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "evaluate" / "main.yml"
@@ -40,6 +40,10 @@ class TuneConfig:
     """Sampler seeds: one study per controller and seed; the best over the seeds wins."""
     validation_seeds: list[int] = field(default_factory=lambda: [1000, 1001, 1002])
     """Seeds of the validation episodes (reset seed 10 000·seed + episode, as in evaluation)."""
+    validation_paths: list[int] = field(default_factory=list)
+    """Seeds of the random admissible validation paths (``path: random``); every validation
+    seed and disturbance runs on each. Empty: the env's default path. They must not be
+    paths of ``test_config`` (tuned gains are judged on other paths than they were tuned on)."""
     disturbances: list[str] = field(
         default_factory=lambda: ["none", "impulse", "periodic", "payload", "noise"]
     )
@@ -100,6 +104,13 @@ class TuneConfig:
             raise InvalidConfigError(f"max_widenings must be >= 0, got {self.max_widenings}")
         if not self.validation_seeds:
             raise InvalidConfigError("validation_seeds must not be empty")
+        if len(set(self.validation_paths)) != len(self.validation_paths) or any(
+            isinstance(p, bool) or not isinstance(p, int) for p in self.validation_paths
+        ):
+            raise InvalidConfigError(
+                f"validation_paths must be distinct integer path seeds, got {self.validation_paths}"
+            )
+        check_paths(self.env_id, self.validation_paths)
         if self.effort_metric not in EFFORT_METRICS:
             raise InvalidConfigError(
                 f"effort_metric must be one of {list(EFFORT_METRICS)}, got {self.effort_metric!r}"
@@ -113,9 +124,15 @@ class TuneConfig:
         if not self.episode_s > 0:
             raise InvalidConfigError("episode_s must be positive")
         check_boxes(self.boxes)
-        test = test_reset_seeds(Path(self.test_config))
+        test, test_paths = test_episodes(Path(self.test_config))
+        shared = sorted(set(self.validation_paths) & test_paths)
+        if shared:
+            raise InvalidConfigError(
+                f"validation paths {shared} are test paths of {self.test_config}: tune on "
+                "other paths"
+            )
         overlap = sorted(set(self.reset_seeds()) & test)
-        if overlap:
+        if overlap and not self.validation_paths and None in test_paths:  # the same path
             raise InvalidConfigError(
                 f"validation seeds {self.validation_seeds} give reset seeds {overlap[:5]} that "
                 f"the test config {self.test_config} uses: tune on other episodes"
@@ -126,11 +143,28 @@ class TuneConfig:
         return [Task("x", "none", 0.0, s, 0).reset_seed for s in self.validation_seeds]
 
     def tasks(self, controller: str) -> list[Task]:
+        """The validation episodes of one path: each disturbance at level 1 × each seed."""
         return [
             Task(controller, d, 0.0 if d == "none" else 1.0, s, 0)
             for d in self.disturbances
             for s in self.validation_seeds
         ]
+
+    def episodes(
+        self, controller: str, gains: str | tuple[tuple[str, Any], ...]
+    ) -> list[tuple[Task, EpisodeSettings]]:
+        """Every validation episode of ``controller`` at ``gains`` (a sorted tuple of rates,
+        or "default") with its settings: :meth:`tasks` on each validation path."""
+        paths: list[int | None] = list(self.validation_paths) or [None]
+        out = []
+        for p in paths:
+            settings = EpisodeSettings(
+                self.env_id, self.episode_s, self.control_hz, "on_path",
+                self.failure_distance_rad, 0.01, gains=gains,
+                path="default" if p is None else "random", path_seed=p,
+            )  # fmt: skip
+            out += [(t, settings) for t in self.tasks(controller)]
+        return out
 
     def box(self, controller: str) -> Box:
         """The box ``controller``'s rates are first searched in (TUNABLE's, with ``boxes``)."""
@@ -141,14 +175,29 @@ class TuneConfig:
         return max(self.trials, self.trials_per_rate * len(self.box(controller)))
 
 
-def test_reset_seeds(config: Path) -> set[int]:
-    """Every reset seed of the evaluation config ``config``."""
+def test_episodes(config: Path) -> tuple[set[int], set[int | None]]:
+    """Every reset seed of the evaluation config ``config``, and its path seeds (None: the
+    default path, or a path family with no seed)."""
     from train.evaluation.config import load_config
 
     if not config.exists():
         raise InvalidConfigError(f"test_config {config} does not exist")
     cfg = load_config(config, [], validate=False)  # its seeds, whatever else it needs
-    return {t.reset_seed for t in cfg.tasks()}
+    return {t.reset_seed for t in cfg.tasks()}, {cfg.path_seed if cfg.path == "random" else None}
+
+
+def check_paths(env_id: str, path_seeds: Sequence[int]) -> None:
+    """Raise :class:`InvalidConfigError` before any episode if a seed gives no admissible
+    random path of ``env_id``'s robot."""
+    import gymnasium as gym
+
+    from ptrack_gym.errors import InvalidPathError
+
+    for seed in path_seeds:
+        try:
+            gym.make(env_id, path="random", path_seed=seed).close()
+        except InvalidPathError as exc:
+            raise InvalidConfigError(f"validation path seed {seed}: {exc}") from exc
 
 
 def load_config(path: Path | None, overrides: Sequence[str]) -> TuneConfig:

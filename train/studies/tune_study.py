@@ -63,13 +63,9 @@ class EpisodeObjective:
         self._env: Any = None
 
     def score(self, controller: str, rates: Mapping[str, float] | None) -> TrialScore:
-        cfg = self.cfg
-        settings = EpisodeSettings(
-            cfg.env_id, cfg.episode_s, cfg.control_hz, "on_path", cfg.failure_distance_rad,
-            0.01, gains="default" if rates is None else tuple(sorted(rates.items())),
-        )  # fmt: skip
-        rows = list(self.pool.map(_run, [(t, settings) for t in cfg.tasks(controller)]))
-        return score_rows(rows, cfg.effort_metric)
+        gains = "default" if rates is None else tuple(sorted(rates.items()))
+        rows = list(self.pool.map(_run, self.cfg.episodes(controller, gains)))
+        return score_rows(rows, self.cfg.effort_metric)
 
     def response(self, controller: str, rates: Mapping[str, float]) -> np.ndarray:
         """τ (N·m) of three steps from q = q_r(s₀) + 0.05, q̇ = 0.9 q_r'(s₀), s₀ = S/4, at
