@@ -180,6 +180,13 @@ def test_bad_configs_fail_before_any_episode(tmp_path, field, value, match):
     assert not (tmp_path / "optuna.journal").exists()
 
 
+def test_a_preset_that_does_not_fit_the_episode_is_refused_before_any_episode(tmp_path):
+    # the impulse's onset window [1, 4] s and its recovery window need 4.55 s
+    with pytest.raises(InvalidConfigError, match="impulse: onset_s"):
+        tune(tiny(tmp_path, disturbances=["none", "impulse"], episode_s=4.0), progress=False)
+    assert not (tmp_path / "optuna.journal").exists()
+
+
 def test_cli_refuses_unknown_keys(capsys):
     with pytest.raises(SystemExit):
         main(["--set", "trails=3"])

@@ -14,6 +14,7 @@ from ptrack_gym.disturbances import PRESETS
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
 from train.common import arguments
+from train.evaluation.envs import check_env_kwargs, env_kwargs
 from train.evaluation.episode import EpisodeSettings, Task
 from train.studies.tune_boxes import Box, check_boxes, resolve_box
 
@@ -123,6 +124,10 @@ class TuneConfig:
             raise InvalidConfigError("effort_reference must be a controller, effort_factor > 0")
         if not self.episode_s > 0:
             raise InvalidConfigError("episode_s must be positive")
+        steps = max(1, round(self.episode_s * self.control_hz)) if self.control_hz > 0 else 1
+        for d in self.disturbances:  # each preset fits the episode, at the control rate
+            text = None if d == "none" else f"{d}:1.0"
+            check_env_kwargs(self.env_id, env_kwargs(self.control_hz, steps, "on_path", text))
         check_boxes(self.boxes)
         test, test_paths = test_episodes(Path(self.test_config))
         shared = sorted(set(self.validation_paths) & test_paths)
