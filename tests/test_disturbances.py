@@ -286,6 +286,31 @@ def test_action_noise_and_mismatch_act_on_the_plant() -> None:
     env.close()
 
 
+@pytest.mark.parametrize(
+    ("control_hz", "level", "steps"),
+    [(1000, 0.5, 1), (1000, 1.0, 2), (1000, 2.0, 4), (500, 1.0, 1), (500, 2.0, 2),
+     (250, 1.0, 1), (250, 2.0, 1), (100, 2.0, 1)],
+)  # fmt: skip
+def test_delay_preset_reports_the_newest_sample_at_least_2ms_x_level_old(
+    control_hz, level, steps
+) -> None:
+    delayed, clean = make(("delay", level), control_hz=control_hz), make(None, control_hz=control_hz)
+    delayed.reset(seed=4)
+    clean.reset(seed=4)
+    history = [clean.joint_state()]
+    for _ in range(8):
+        for env in (delayed, clean):
+            env.step(np.full(2, 0.2))
+        history.append(clean.joint_state())
+        np.testing.assert_array_equal(delayed.joint_state()[0], clean.joint_state()[0])
+        seen = delayed.measured_joint_state()
+        for got, want in zip(seen, history[max(0, len(history) - 1 - steps)], strict=True):
+            np.testing.assert_array_equal(got, want)
+    # the sample is at least the preset's delay old, and less than one control step older
+    assert steps / control_hz >= 2e-3 * level - 1e-12
+    assert (steps - 1) / control_hz < 2e-3 * level
+
+
 def test_level_zero_is_no_disturbance_and_presets_build() -> None:
     for name in PRESETS:
         assert build_disturbances((name, 0.0), robot_profile("iiwa")) == []
@@ -366,6 +391,9 @@ def test_delivered_mode_gives_the_moving_arm_its_energy_budget() -> None:
         (("impulse", {"energy": 1.0}), "energy_j"),
         ({"type": "impulse", "fraction": -0.2}, "fraction"),
         ({"type": "observation_delay", "steps": 1.5}, "steps"),
+        ({"type": "observation_delay", "steps": True}, "steps"),
+        ({"type": "observation_delay", "delay_s": -1e-3}, "delay_s"),
+        ({"type": "observation_delay", "steps": 2, "delay_s": 2e-3}, "not both"),
         (42, "cannot build"),
     ],
 )

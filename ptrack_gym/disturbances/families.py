@@ -15,6 +15,8 @@ does not apply to them; see :class:`Mismatch` and :class:`ActionNoise`).
 
 from __future__ import annotations
 
+import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -269,20 +271,40 @@ class ObservationNoise(Disturbance):
 @dataclass
 class ObservationDelay(Disturbance):
     """Sensor delay: the reported state is the one ``steps`` control steps ago (the
-    episode's first state until enough steps have passed)."""
+    episode's first state until enough steps have passed); 2 steps if neither ``steps``
+    nor ``delay_s`` is given.
+
+    With ``delay_s`` (s) the delay is given in time instead: steps = ⌈delay_s / Δt⌉ at the
+    env's control step Δt — the newest sample at least ``delay_s`` old (at 1 kHz, 2 ms is
+    2 steps; at 250 Hz, 1 step of 4 ms), so a preset means the same on every control rate.
+    """
 
     name: ClassVar[str] = "observation_delay"
-    steps: int = 2
+    steps: int | None = None
+    delay_s: float | None = None
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.steps, (int, np.integer)) and self.steps >= 0):
+        if self.steps is not None and self.delay_s is not None:
+            raise InvalidConfigError("give the delay as steps or as delay_s, not both")
+        if self.steps is not None and not (
+            isinstance(self.steps, (int, np.integer))
+            and not isinstance(self.steps, bool)
+            and self.steps >= 0
+        ):
             raise InvalidConfigError(f"steps must be an integer >= 0, got {self.steps!r}")
+        if self.delay_s is not None:
+            check_non_negative(self.delay_s, "delay_s")
+
+    def delay_steps(self, control_dt_s: float) -> int:
+        """The delay in control steps at the control step ``control_dt_s`` (s)."""
+        if self.delay_s is None:
+            return 2 if self.steps is None else int(self.steps)
+        return int(math.ceil(self.delay_s / control_dt_s - 1e-9))
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
-        self._buffer: list[tuple[FloatArray, FloatArray]] = []
+        self._steps = self.delay_steps(ctx.control_dt_s)
+        self._buffer: deque[tuple[FloatArray, FloatArray]] = deque(maxlen=self._steps + 1)
 
     def sense(self, q: FloatArray, qd: FloatArray) -> tuple[FloatArray, FloatArray]:
         self._buffer.append((q, qd))
-        if len(self._buffer) > self.steps + 1:
-            self._buffer.pop(0)
         return self._buffer[0]

@@ -38,6 +38,7 @@ PRESETS: tuple[str, ...] = (
     "payload",
     "mismatch",
     "mixed",
+    "delay",
 )
 #: Presets that accept an energy budget, ``(preset, {"energy_j": E})``.
 ENERGY_PRESETS: tuple[str, ...] = ("impulse", "push", "periodic")
@@ -55,7 +56,8 @@ def preset_specs(name: str, level: float, profile: RobotProfile) -> list[dict[st
     (1 mrad, 10 mrad/s), actuation noise (1 rad/s² per joint inertia) and a 5 Hz
     band-limited torque (1 rad/s²); a payload of ``payload_kg`` is picked up between 1 and
     4 s; the mismatch preset scales link masses by ±20%, with damping 0.5/s and friction
-    0.5 rad/s². The onsets (1-4 s) are the same at every level, so are the shortest
+    0.5 rad/s²; the delay preset reports the state sampled 2 ms × level earlier (at least:
+⌈delay / Δt⌉ control steps). The onsets (1-4 s) are the same at every level, so are the shortest
     episodes these accept (:func:`~ptrack_gym.disturbances.base.min_horizon_s`: the latest
     onset + duration + 0.5 s of recovery): impulse and mixed 4.55 s, push 4.6 s, payload
     4.5 s; the others any length.
@@ -76,6 +78,7 @@ def _specs(name: str, level: float, sc: DisturbanceScales) -> list[dict[str, Any
             {"type": "noise_torque", "accel_rad_s2": 1.0 * level, "bandwidth_hz": 5.0},
         ],
         "payload": [{"type": "payload", "mass_kg": sc.payload_kg * level, "pick_s": (1.0, 4.0)}],
+        "delay": [{"type": "observation_delay", "delay_s": 2e-3 * level}],
         "mismatch": [
             {
                 "type": "mismatch",
