@@ -17,7 +17,7 @@ STAMP := $(VENV)/.installed
 
 PTRACK := $(VENV)/bin/ptrack
 
-.PHONY: setup check-python run test lint docs bench experiment clean
+.PHONY: setup check-python run test lint docs bench experiment verdict clean
 
 setup: $(STAMP)
 
@@ -49,6 +49,13 @@ run: setup
 experiment: setup
 	@test -n "$(CONFIG)" || { echo "usage: make experiment CONFIG=train/configs/<command>/<name>.yml [ARGS=...]" >&2; exit 2; }
 	$(PTRACK) $(notdir $(patsubst %/,%,$(dir $(CONFIG)))) --config $(CONFIG) $(ARGS)
+
+# The verdict across robots and paths (issue 38): 4 robots x 8 random test paths x 15
+# conditions x 10 seeds x 9 controllers at tuned gains = 43 200 episodes of 8 s, about
+# 13 core-hours (train/configs/verdict/verdict.yml says how the figure was measured).
+# Resumable: make verdict ARGS=--resume continues an interrupted one.
+verdict: setup
+	$(PTRACK) verdict --config train/configs/verdict/verdict.yml $(ARGS)
 
 lint: setup
 	$(PY) -m ruff check .

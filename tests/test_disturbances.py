@@ -294,7 +294,10 @@ def test_action_noise_and_mismatch_act_on_the_plant() -> None:
 def test_delay_preset_reports_the_newest_sample_at_least_2ms_x_level_old(
     control_hz, level, steps
 ) -> None:
-    delayed, clean = make(("delay", level), control_hz=control_hz), make(None, control_hz=control_hz)
+    delayed, clean = (
+        make(("delay", level), control_hz=control_hz),
+        make(None, control_hz=control_hz),
+    )
     delayed.reset(seed=4)
     clean.reset(seed=4)
     history = [clean.joint_state()]

@@ -126,9 +126,7 @@ def test_validation_paths_run_every_seed_and_disturbance_on_each_path(tmp_path):
     assert by_path[9001] == by_path[9002]  # the same episodes on each path
     assert all(s.path == "random" for _, s in episodes)
     # no validation paths: the default path, as before
-    assert {s.path for _, s in tiny(tmp_path).episodes("computed_torque", "default")} == {
-        "default"
-    }
+    assert {s.path for _, s in tiny(tmp_path).episodes("computed_torque", "default")} == {"default"}
 
 
 def test_validation_paths_that_the_test_config_runs_on_are_refused(tmp_path):

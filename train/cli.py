@@ -15,6 +15,7 @@ docstrings). SB3 hyperparameters of ``ptrack train`` come apart, under ``--hp ke
 ``adversary``      adversarial disturbance search (:mod:`train.studies.adversary`)
 ``replay``         re-run the worst cases a search found (its ``worst.yml``)
 ``rates``          the control rate as a robustness axis (:class:`train.studies.rates.RatesConfig`)
+``verdict``        every robot × random test path × preset (:mod:`train.studies.verdict_study`)
 ``report``         rewrite ``report.md`` of results folders from their episodes tables
 ``probe-actions``  how much of its action range a trained policy uses
 ``probe-authority``  whether a residual's authority can move the arm at all
@@ -125,6 +126,12 @@ def _run_adversary(cfg: Any, a: argparse.Namespace) -> None:
     from train.studies.adversary import run_search
 
     run_search(cfg, a.resume, not a.no_progress, force=a.force)
+
+
+def _run_verdict(cfg: Any, a: argparse.Namespace) -> Path:
+    from train.studies.verdict_study import run_verdict
+
+    return run_verdict(cfg, a.resume, not a.no_progress, force=a.force) / "verdict.md"
 
 
 def _run_rates(cfg: Any, a: argparse.Namespace) -> None:
@@ -299,6 +306,10 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Runner
     "rates": (
         "the control rate as a robustness axis",
         *_config_command("train.studies.rates:RatesConfig", "study", _run_rates),
+    ),
+    "verdict": (
+        "the verdict across robots and random test paths",
+        *_config_command("train.studies.verdict_study:VerdictConfig", "study", _run_verdict),
     ),
     "report": ("rewrite and print results folders' reports", _report_parser, _report),
     "probe-actions": (

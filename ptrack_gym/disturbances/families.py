@@ -299,7 +299,7 @@ class ObservationDelay(Disturbance):
         """The delay in control steps at the control step ``control_dt_s`` (s)."""
         if self.delay_s is None:
             return 2 if self.steps is None else int(self.steps)
-        return int(math.ceil(self.delay_s / control_dt_s - 1e-9))
+        return math.ceil(self.delay_s / control_dt_s - 1e-9)
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._steps = self.delay_steps(ctx.control_dt_s)

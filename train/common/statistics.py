@@ -146,3 +146,47 @@ def pareto_front(effort: np.ndarray, error: np.ndarray) -> np.ndarray:
             front.append(i)
             best = error[i]
     return np.array(front, dtype=int)
+
+
+def hierarchical_bootstrap(
+    values: np.ndarray,
+    clusters: np.ndarray,
+    resamples: int,
+    seed: int,
+    confidence: float = 0.95,
+) -> tuple[float, float, float]:
+    """The mean over clusters of each cluster's mean, with a two-stage percentile-bootstrap
+    interval: clusters (paths) drawn with replacement, then within each drawn cluster its
+    units (seeds) with replacement — each draw of a cluster resampled on its own.
+
+    Returns (estimate, low, high): estimate = (1/P) Σ_p mean_i x_pi over the P clusters of
+    ``clusters`` (each weighs the same, whatever its size); NaN values are dropped, and a
+    cluster left empty with them. (NaN, NaN, NaN) without values; with one cluster the
+    interval is its seeds' bootstrap only (the path-to-path spread is then unknown).
+    """
+    x = np.asarray(values, dtype=float)
+    keys = np.asarray(clusters)
+    ok = np.isfinite(x)
+    x, keys = x[ok], keys[ok]
+    if x.size == 0:
+        return float("nan"), float("nan"), float("nan")
+    labels, inverse = np.unique(keys, return_inverse=True)
+    groups = [x[inverse == k] for k in range(len(labels))]
+    estimate = float(np.mean([g.mean() for g in groups]))
+    sizes = np.array([g.size for g in groups])
+    padded = np.zeros((len(groups), sizes.max()))
+    for k, g in enumerate(groups):
+        padded[k, : g.size] = g
+    rng = np.random.default_rng(seed)
+    p = len(groups)
+    drawn = rng.integers(0, p, size=(resamples, p))  # stage 1: the clusters
+    n = sizes[drawn]  # (R, P)
+    u = rng.random((resamples, p, sizes.max()))
+    picks = np.minimum((u * n[..., None]).astype(int), n[..., None] - 1)  # stage 2: units
+    taken = padded[drawn[..., None], picks]  # (R, P, max n)
+    valid = np.arange(sizes.max()) < n[..., None]
+    means = np.where(valid, taken, 0.0).sum(axis=2) / n
+    stat = means.mean(axis=1)
+    tail = (1.0 - confidence) / 2.0
+    low, high = np.quantile(stat, [tail, 1.0 - tail])
+    return estimate, float(low), float(high)
