@@ -16,7 +16,8 @@ from ptrack_gym.errors import InvalidConfigError
 from train.cli import run_command
 from train.studies.adversary import AdversaryConfig, load_config, replay, run_search
 
-#: Two-link, short episodes: impulses in [0.2, 0.6] s, cost over the 0.5 s after.
+#: Two-link: impulses from 0.2 s on, over a whole path period, cost over the 0.5 s after;
+#: two search seeds, each 16 random draws then two CMA-ES runs of 8 (populations 4 and 8).
 TINY = [
     "env_id=ptrack_gym/TwoLinkTrack-v0",
     "controllers=[pd_gravity]",
@@ -24,6 +25,8 @@ TINY = [
     "onset_s=[0.2, 0.6]",
     "post_s=0.5",
     "popsize=4",
+    "search_seeds=[0, 1]",
+    "control_hz=250.0",
     "workers=2",
 ]
 
@@ -43,7 +46,8 @@ def search(tmp_path_factory):
 
 def test_search_finds_a_worse_push_than_the_median_random_one(search) -> None:
     df = pd.read_csv(search / "trials.csv", float_precision="round_trip")
-    assert len(df) == 32  # 16 searched + 16 random
+    assert len(df) == 2 * 32  # per seed 16 searched + 16 random
+    assert sorted(df["run"].unique()) == ["random", "search0", "search1"]
     searched = df[df["kind"] == "search"]["cost_rad"]
     random = df[df["kind"] == "random"]["cost_rad"]
     assert searched.max() > random.median()
@@ -57,6 +61,25 @@ def test_search_finds_a_worse_push_than_the_median_random_one(search) -> None:
         entry = worst[controller]["impulse"][f"{energy:g}"]
         assert entry["cost_rad"] == g["cost_rad"].max()  # the worst episode run, either kind
         assert entry["found_by"] == g.loc[g["cost_rad"].idxmax(), "kind"]
+    # every seed's search reaches at least its random worst (it starts from it)
+    for _, g in df.groupby("seed"):
+        assert (
+            g[g["kind"] == "search"]["cost_rad"].max() >= g[g["kind"] == "random"]["cost_rad"].max()
+        )
+    assert bool(summary.loc[0, "search_reached_random"])
+    per_seed = df.groupby("seed")["cost_rad"].max()
+    assert summary.loc[0, "spread"] == pytest.approx(
+        (per_seed.max() - per_seed.min()) / per_seed.median()
+    )
+    # the start phase and the onset span the path's whole period S
+    from ptrack_gym.robots import robot_profile
+
+    period = robot_profile("two_link").path_period_s
+    s0 = df["s0"].to_numpy()
+    assert s0.min() >= 0.0 and s0.max() < period and s0.max() - s0.min() > period / 2
+    onsets = df["spec"].map(lambda t: yaml.safe_load(t)["onset_s"])
+    assert onsets.min() >= 0.2 and onsets.max() < 0.2 + period
+    assert onsets.max() - onsets.min() > period / 2
     for name in ("summary.md", "adversary.png", "worst.yml", "config.yml", "optuna.journal"):
         assert (search / name).stat().st_size > 0, name
 
@@ -77,23 +100,29 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
     with pytest.raises(InvalidConfigError, match="--resume"):
         run_search(load_config(None, [*TINY, "budget=20", f"out={out}"]), progress=False)
     with pytest.raises(InvalidConfigError, match="different settings"):
-        run_search(load_config(None, [*TINY, "budget=20", "seed=3", f"out={out}"]), resume=True)
+        run_search(
+            load_config(None, [*TINY, "budget=20", "search_seeds=[3]", f"out={out}"]), resume=True
+        )
     run_search(load_config(None, [*TINY, "budget=20", f"out={out}"]), resume=True, progress=False)
     df = pd.read_csv(out / "trials.csv", float_precision="round_trip")
-    assert len(df) == 40
+    assert len(df) == 2 * 40
     # the random draws of the resumed search are those of an uninterrupted one
     fresh = tmp_path / "fresh"
     run_search(load_config(None, [*TINY, "budget=20", f"out={fresh}"]), progress=False)
     whole = pd.read_csv(fresh / "trials.csv", float_precision="round_trip")
-    rand = ["trial", "cost_rad", "spec"]
+    rand = ["seed", "trial", "cost_rad", "spec"]
     pd.testing.assert_frame_equal(
-        df[df["kind"] == "random"][rand].sort_values("trial").reset_index(drop=True),
-        whole[whole["kind"] == "random"][rand].sort_values("trial").reset_index(drop=True),
+        df[df["kind"] == "random"][rand].sort_values(["seed", "trial"]).reset_index(drop=True),
+        whole[whole["kind"] == "random"][rand]
+        .sort_values(["seed", "trial"])
+        .reset_index(drop=True),
     )
     first = pd.read_csv(search / "trials.csv", float_precision="round_trip")
-    kept = df[df["trial"] < 16].sort_values(["kind", "trial"]).reset_index(drop=True)
+    key = ["seed", "run", "trial"]
+    kept = df.merge(first[key], on=key).sort_values(key).reset_index(drop=True)
+    assert len(kept) == 2 * 32  # every episode of the first search is kept, unchanged
     pd.testing.assert_series_equal(
-        kept["cost_rad"], first.sort_values(["kind", "trial"]).reset_index(drop=True)["cost_rad"]
+        kept["cost_rad"], first.sort_values(key).reset_index(drop=True)["cost_rad"]
     )
 
 
@@ -109,17 +138,25 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
         ("push_links=[no_such_link]", "no link 'no_such_link'"),
         ("energy_mode=kinetic", "energy_mode"),
         ("onset_s=[2.0, 1.0]", "onset_s"),
+        ("search_seeds=[]", "search_seeds"),
+        ("search_seeds=[1, 1]", "search_seeds"),
+        ("restarts=3", "restarts"),  # 10 episodes over 4 runs: fewer than a population each
+        ("space=cube", "space"),
+        # an empty search space: a box onset range of zero width, a single frequency
+        ("space=box;onset_s=[1.0, 1.0]", r"onset_s \[1, 1\] is an empty search range"),
+        ("families=[periodic];frequency_hz=[1.0, 1.0]", "frequency_hz .* empty search range"),
         ("gains=fancy", "gains"),
     ],
 )
 def test_bad_input_is_refused_before_any_episode(tmp_path, override, match, capsys) -> None:
+    overrides = override.split(";")
     extra = ["families=[push]"] if "push_links" in override else []
-    cfg = load_config(None, [*TINY, "budget=10", *extra, override, f"out={tmp_path / 'x'}"])
+    cfg = load_config(None, [*TINY, "budget=10", *extra, *overrides, f"out={tmp_path / 'x'}"])
     with pytest.raises(InvalidConfigError, match=match):
         run_search(cfg, progress=False)
     assert not (tmp_path / "x").exists()
     with pytest.raises(SystemExit) as exc:
-        main([*[a for t in [*TINY, *extra, override] for a in ("--set", t)],
+        main([*[a for t in [*TINY, "budget=10", *extra, *overrides] for a in ("--set", t)],
               "--out", str(tmp_path / "y")])  # fmt: skip
     assert exc.value.code == 2
     assert not (tmp_path / "y").exists()
@@ -141,3 +178,69 @@ def test_unknown_config_keys_are_refused() -> None:
     with pytest.raises(InvalidConfigError, match=r"unknown field\(s\) \['budjet'\]"):
         load_config(None, ["budjet=3"])
     assert isinstance(load_config(None, []), AdversaryConfig)
+
+
+def test_sphere_angles_give_unit_directions_that_wrap() -> None:
+    import math
+
+    import numpy as np
+
+    from train.studies.worst_case import ANGLE_RANGE, is_wrapping, sphere_point
+
+    rng = np.random.default_rng(0)
+    for d in (2, 3, 7):
+        for _ in range(20):
+            a = rng.uniform(*ANGLE_RANGE, size=d - 1)
+            x = np.array(sphere_point(a))
+            assert x.shape == (d,) and abs(np.linalg.norm(x) - 1.0) < 1e-12
+            np.testing.assert_allclose(sphere_point(a + 2 * math.pi), x, atol=1e-12)
+    # every direction is reached: the angles of a point give it back (d = 3)
+    target = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    phi1 = math.acos(target[0])
+    phi2 = math.atan2(target[2], target[1])
+    np.testing.assert_allclose(sphere_point([phi1, phi2]), target, atol=1e-12)
+    assert is_wrapping("a0") and is_wrapping("start_phase") and is_wrapping("onset_phase")
+    assert not is_wrapping("frequency_hz") and not is_wrapping("x0") and not is_wrapping("alpha")
+
+
+def test_parameters_within_2_percent_of_a_bound_are_flagged() -> None:
+    import optuna
+
+    from train.studies.adversary import on_bound
+
+    f = optuna.distributions.FloatDistribution(0.2, 5.0, log=True)
+    a = optuna.distributions.FloatDistribution(-3.0, 9.0)
+    lin = optuna.distributions.FloatDistribution(0.0, 1.0)
+
+    def trial(**params):
+        dists = {"frequency_hz": f, "a0": a, "x0": lin}
+        return optuna.trial.create_trial(
+            params=params, distributions={k: dists[k] for k in params}, value=1.0
+        )
+
+    # log space: 4.7 Hz is 1.9 % of the log range below 5 Hz; a wrapping angle never counts
+    assert on_bound([trial(frequency_hz=4.7, a0=-3.0)]) == ["frequency_hz"]
+    assert on_bound([trial(frequency_hz=4.0, a0=9.0)]) == []
+    assert on_bound([trial(frequency_hz=1.0, x0=0.015)]) == ["x0"]
+    assert on_bound([trial(frequency_hz=1.0, x0=0.5), trial(frequency_hz=0.205)]) == [
+        "frequency_hz"
+    ]
+
+
+def test_a_search_of_the_old_protocol_still_replays(tmp_path) -> None:
+    """A config.yml written before issue 38 (one ``seed``, the box) loads as that search."""
+    from train.studies.adversary_config import saved_config
+
+    old = dataclass_dict(AdversaryConfig())
+    old.pop("search_seeds")
+    old.pop("space")
+    old.pop("restarts")
+    old["seed"] = 4
+    cfg = saved_config(old)
+    assert cfg.search_seeds == [4] and cfg.space == "box" and cfg.restarts == 0
+
+
+def dataclass_dict(cfg: AdversaryConfig) -> dict:
+    import dataclasses
+
+    return dataclasses.asdict(cfg)

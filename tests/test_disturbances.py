@@ -340,13 +340,15 @@ def test_energy_budget_sets_the_impulse_size() -> None:
     env.close()
 
 
-def _kinetic_energy_jump(mode: str, onset_s: float, direction: list[float]) -> tuple[float, float]:
-    """What an impulse of 0.3 J does in its one physics step to the falling two-link arm
-    (zero action from the path): the kinetic energy it adds, T(q̇⁺) with it − T(q̇⁺) without
-    (both in the M(q) of the step: PyBullet's step is semi-implicit Euler with that M), and
-    the part of it that gravity's pull during the step adds, pᵀ(q̇₀⁺ − q̇), p the impulse's
-    momentum and q̇₀⁺ the velocity after the step without it."""
-    spec = {"type": "impulse", "energy_j": 0.3, "duration_s": 0.001, "onset_s": onset_s,
+def _kinetic_energy_jump(
+    mode: str, onset_s: float, direction: list[float], family: str = "impulse"
+) -> tuple[float, float]:
+    """What an impulse (or a push at the end effector) of 0.3 J does in its one physics
+    step to the falling two-link arm (zero action from the path): the kinetic energy it
+    adds, T(q̇⁺) with it − T(q̇⁺) without (both in the M(q) of the step: PyBullet's step is
+    semi-implicit Euler with that M), and the part of it that gravity's pull during the step
+    adds, pᵀ(q̇₀⁺ − q̇), p the joint momentum and q̇₀⁺ the velocity after the step without it."""
+    spec = {"type": family, "energy_j": 0.3, "duration_s": 0.001, "onset_s": onset_s,
             "direction": direction, "energy_mode": mode}  # fmt: skip
     envs = [gym.make(TWO_LINK, disturbance=d, control_hz=1000.0) for d in (spec, None)]
     try:
@@ -382,6 +384,21 @@ def test_delivered_mode_gives_the_moving_arm_its_energy_budget() -> None:
     assert np.ptp(home) > 0.1  # sized at rest at home, it gives the moving arm other energies
 
 
+def test_a_delivered_push_gives_the_moving_arm_its_energy_budget() -> None:
+    """The push's joint momentum p = J(q)ᵀF·T, sized at its onset from (q, q̇): the same
+    budget as an impulse's (the two-link moves in the x-z plane: world directions in it)."""
+    rng = np.random.default_rng(1)
+    home = []
+    for _ in range(6):
+        onset = float(rng.uniform(0.2, 0.8))
+        angle = float(rng.uniform(0.0, 2.0 * np.pi))
+        direction = [float(np.cos(angle)), 0.0, float(np.sin(angle))]
+        jump, gravity_part = _kinetic_energy_jump("delivered", onset, direction, "push")
+        assert jump - gravity_part == pytest.approx(0.3, rel=1e-6)
+        home.append(_kinetic_energy_jump("home", onset, direction, "push")[0])
+    assert np.ptp(home) > 0.05  # sized at rest at home, the push gives other energies
+
+
 @pytest.mark.parametrize(
     ("spec", "match"),
     [
@@ -397,6 +414,8 @@ def test_delivered_mode_gives_the_moving_arm_its_energy_budget() -> None:
         ({"type": "observation_delay", "steps": True}, "steps"),
         ({"type": "observation_delay", "delay_s": -1e-3}, "delay_s"),
         ({"type": "observation_delay", "steps": 2, "delay_s": 2e-3}, "not both"),
+        ({"type": "push", "energy_mode": "delivered"}, "needs energy_j"),
+        ({"type": "push", "energy_j": 1.0, "energy_mode": "kinetic"}, "energy_mode"),
         (42, "cannot build"),
     ],
 )
@@ -407,8 +426,16 @@ def test_bad_specs_raise_clear_errors(spec, match) -> None:
         gym.make(TWO_LINK, disturbance=spec)
 
 
-def test_disturbed_env_pickles_and_continues_identically() -> None:
-    env = make("mixed", control_hz=100)
+@pytest.mark.parametrize(
+    "disturbance",
+    [
+        "mixed",
+        # sized at its onset (1.5 s), after the pickle: the copy re-attaches M(q) and J(q)
+        {"type": "push", "energy_j": 0.3, "onset_s": 1.5, "energy_mode": "delivered"},
+    ],
+)
+def test_disturbed_env_pickles_and_continues_identically(disturbance) -> None:
+    env = make(disturbance, control_hz=100)
     env.reset(seed=9)
     for _ in range(250):  # past the payload pick-up window start
         env.step(np.full(2, 0.05))

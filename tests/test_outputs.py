@@ -34,6 +34,7 @@ def _output(path: Path) -> str:
         "rates": "train.studies.rates",
         "tune": "train.studies.tune",
         "adversary": "train.studies.adversary",
+        "verdict": "train.studies.verdict_study",
     }
     import importlib
 

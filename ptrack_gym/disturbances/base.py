@@ -78,6 +78,8 @@ class DisturbanceContext:
         link_jacobians_home: every link's centre-of-mass Jacobian at home, (3, n), by name.
         mass_matrix: the nominal model's M(q) (kg·m²), for sizing by the state at onset
             (``energy_mode="delivered"``, ``sizing="onset"``); None where unavailable.
+        com_jacobian: (link, q) ↦ the link's centre-of-mass Jacobian at q, (3, n), for a
+            push sized at its onset (``energy_mode="delivered"``); None where unavailable.
     """
 
     n: int
@@ -91,6 +93,7 @@ class DisturbanceContext:
     mean_path_speed_rad_s: float
     link_jacobians_home: Mapping[str, FloatArray] = field(default_factory=dict)
     mass_matrix: Callable[[FloatArray], FloatArray] | None = None
+    com_jacobian: Callable[[str, FloatArray], FloatArray] | None = None
 
 
 @dataclass(frozen=True)
@@ -150,8 +153,9 @@ class Disturbance:
         """Joint torque (N·m) to add before the physics sub-step starting at ``t_s``."""
         return None
 
-    def wrench(self, t_s: float) -> tuple[str, FloatArray] | None:
-        """(link name, world-frame force in N at the link's centre of mass), or None."""
+    def wrench(self, t_s: float, q: FloatArray, qd: FloatArray) -> tuple[str, FloatArray] | None:
+        """(link name, world-frame force in N at the link's centre of mass), or None; (q, q̇)
+        is the arm's state at the sub-step's start."""
         return None
 
     def plant(self, t_s: float) -> dict[str, MassChange] | None:

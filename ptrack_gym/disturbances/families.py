@@ -68,7 +68,13 @@ class Push(Disturbance):
     in a random world direction, applied at the link's centre of mass each physics
     sub-step (PyBullet clears external forces after every step). With ``energy_j``, the
     force is scaled so its momentum Jᵀ(F·T) (J the link's centre-of-mass Jacobian at home)
-    gives an arm at rest at home that energy. ``direction`` fixes the world direction."""
+    gives an arm at rest at home that energy. ``direction`` fixes the world direction.
+
+    ``energy_mode="delivered"`` (with ``energy_j``): the force's size f is chosen at the
+    onset from the arm's (q, q̇), J(q) and the nominal M(q), the way an impulse's is: its
+    joint momentum p = f·a, a = J(q)ᵀF̂·T, changes the arm's kinetic energy by energy_j,
+    pᵀq̇ + ½pᵀM(q)⁻¹p = energy_j (the work of an instantaneous push; the ``duration_s``-long
+    one delivers it up to what gravity and the controller do meanwhile)."""
 
     name: ClassVar[str] = "push"
     force_n: float = 20.0
@@ -77,6 +83,7 @@ class Push(Disturbance):
     link: str | None = None
     energy_j: float | None = None
     direction: tuple[float, float, float] | None = None
+    energy_mode: str = "home"
 
     def __post_init__(self) -> None:
         check_non_negative(self.force_n, "force_n")
@@ -87,12 +94,24 @@ class Push(Disturbance):
             check_non_negative(self.energy_j, "energy_j")
         if self.direction is not None:
             fixed_direction(self.direction, 3, "direction")
+        if self.energy_mode not in ("home", "delivered"):
+            raise InvalidConfigError(
+                f"energy_mode must be 'home' or 'delivered', got {self.energy_mode!r}"
+            )
+        if self.energy_mode == "delivered" and self.energy_j is None:
+            raise InvalidConfigError("energy_mode='delivered' needs energy_j")
 
     def timed_events(self) -> tuple[TimedEvent, ...]:
         return (("onset_s", self.onset_s, self.duration_s),)
 
     def validate(self, ctx: DisturbanceContext) -> None:
         check_link(self.link, ctx, "push")
+        if self.energy_mode == "delivered" and (
+            ctx.mass_matrix is None or ctx.com_jacobian is None
+        ):
+            raise InvalidConfigError(
+                "energy_mode='delivered' needs the model's mass matrix and the links' Jacobians"
+            )
 
     def reset(self, rng: np.random.Generator, ctx: DisturbanceContext) -> None:
         self._onset = draw(rng, self.onset_s)
@@ -100,17 +119,44 @@ class Push(Disturbance):
         direction = unit_vector(rng, 3)
         if self.direction is not None:
             direction = fixed_direction(self.direction, 3, "direction")
+        self._direction = direction
         self._force = self.force_n * direction
-        if self.energy_j is not None:
+        self._sized = True
+        if self.energy_mode == "delivered":
+            self.set_context(ctx)
+            self._force = np.full(3, np.nan)
+            self._sized = False  # f is chosen at the onset, from the arm's state
+        elif self.energy_j is not None:
             jac = ctx.link_jacobians_home.get(self._link, ctx.ee_jacobian_home)
             p = jac.T @ direction * self.duration_s
             self._force = direction * _impulse_energy_scale(p, ctx.home_mass_matrix, self.energy_j)
 
+    def set_context(self, ctx: DisturbanceContext) -> None:
+        """Re-attach the model's M(q) and the links' Jacobians (after unpickling)."""
+        if self.energy_mode == "delivered":
+            self._mass_matrix, self._com_jacobian = ctx.mass_matrix, ctx.com_jacobian
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        for name in ("_mass_matrix", "_com_jacobian"):  # model methods: set_context restores
+            state.pop(name, None)
+        return state
+
     def acts_during(self, t0_s: float, t1_s: float) -> bool:
         return t0_s < self._onset + self.duration_s and self._onset < t1_s
 
-    def wrench(self, t_s: float) -> tuple[str, FloatArray] | None:
+    def wrench(self, t_s: float, q: FloatArray, qd: FloatArray) -> tuple[str, FloatArray] | None:
         if self._onset <= t_s < self._onset + self.duration_s:
+            if not self._sized:
+                a = self._com_jacobian(self._link, q).T @ self._direction * self.duration_s
+                quad = float(a @ np.linalg.solve(self._mass_matrix(q), a))
+                if quad > 0:
+                    lin = float(a @ qd)
+                    f = (-lin + np.sqrt(lin * lin + 2.0 * quad * float(self.energy_j))) / quad
+                else:  # a direction the link cannot move in: no push reaches the joints
+                    f = 0.0
+                self._force = f * self._direction
+                self._sized = True
             return self._link, self._force
         return None
 
@@ -120,6 +166,7 @@ class Push(Disturbance):
             "duration_s": self.duration_s,
             "force_n": self._force.copy(),
             "link": self._link,
+            "sized": self._sized,
         }
 
 

@@ -182,7 +182,7 @@ class DisturbanceRunner:
             if pushers:
                 arm.apply_torque_list((tau_cmd + tau_d).tolist())
                 for d in pushers:
-                    w = d.wrench(t_k)
+                    w = d.wrench(t_k, q, qd)
                     if w is not None:
                         link, force = w
                         arm.apply_link_force(link, force)

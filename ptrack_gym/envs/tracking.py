@@ -215,6 +215,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
                     link: self.arm.com_jacobian(link, home) for link in self.arm.link_names
                 },
                 mass_matrix=self.model.mass_matrix,
+                com_jacobian=self.arm.com_jacobian,
             )
             self.runner.validate(self.disturbance_context)
         except BaseException:

@@ -259,9 +259,11 @@ def rollout(
     reset_seed: int,
     keep_trace: bool = False,
     lean: bool = True,
+    reset_options: dict[str, Any] | None = None,
 ) -> tuple[EpisodeRecord, np.ndarray | None]:
     """One episode of ``policy`` on ``env`` from ``env.reset(seed=reset_seed)`` until it
-    terminates or is truncated: the :class:`EpisodeRecord` and, with ``keep_trace``, the
+    terminates or is truncated (``reset_options``: the env's, e.g. ``{"s0": …}``): the
+    :class:`EpisodeRecord` and, with ``keep_trace``, the
     policy's storage terms per step (the passivity controller's H + W_r(σ), H_r, φ, ψ, E;
     NaN for other policies). The record of a :class:`~agents.policy.ControllerPolicy` holds
     the nominal feed-forward along the controller's phase (``tau_ff_nm``, module docstring);
@@ -286,11 +288,11 @@ def rollout(
     phases: list[float] = []
     if limit is not None:  # the same calls, in the same order, without the layers around
         assert isinstance(policy, ControllerPolicy)
-        obs, _ = u.reset(seed=reset_seed)
+        obs, _ = u.reset(seed=reset_seed, options=reset_options)
         policy.reset_controller(obs)  # what predict does when episode_start is set
         act, step = policy.action, u.step
     else:
-        obs, _ = env.reset(seed=reset_seed)
+        obs, _ = env.reset(seed=reset_seed, options=reset_options)
         starts = [np.ones(1, dtype=bool)]
 
         def act(observation: np.ndarray) -> np.ndarray:

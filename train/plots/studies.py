@@ -51,21 +51,31 @@ def fronts_plot(rows: list[dict[str, Any]], path: Path, reference: str) -> None:
 
 
 def adversary_plot(df: Any, path: Path) -> None:
-    """The worst cost so far against searched episodes, per family × energy."""
+    """The worst cost so far against the episodes run, per family × energy: one line per
+    controller and search seed (the random draws first, then the CMA-ES runs: the grey
+    line marks where the search starts)."""
     plt = pyplot()
 
     groups = list(df.groupby(["family", "energy_j"]))
     fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups), 4), squeeze=False)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for ax, ((family, energy), g) in zip(axes[0], groups, strict=True):
-        for controller, gc in g.groupby("controller"):
-            s = gc[gc["kind"] == "search"].sort_values("trial")
-            (line,) = ax.plot(np.maximum.accumulate(s["cost_rad"].to_numpy()), label=controller)
-            med = gc[gc["kind"] == "random"]["cost_rad"].median()
-            ax.axhline(med, color=line.get_color(), ls=":", lw=1)
+        for i, (controller, gc) in enumerate(g.groupby("controller")):
+            seeds = gc["seed"].unique() if "seed" in gc else [None]
+            for k, seed in enumerate(seeds):
+                run = gc if seed is None else gc[gc["seed"] == seed]
+                order = "evaluation" if "evaluation" in run else "trial"
+                run = run.sort_values(["kind", order], ascending=[False, True], kind="stable")
+                ax.plot(
+                    np.maximum.accumulate(run["cost_rad"].to_numpy()),
+                    color=colours[i % len(colours)], lw=1.2,
+                    label=controller if k == 0 else None,
+                )  # fmt: skip
+            ax.axvline((gc["kind"] == "random").sum() / max(len(seeds), 1), color="0.6", lw=0.8)
         ax.set_yscale("log")
-        ax.set_xlabel("searched episodes")
-        ax.set_ylabel("worst cost so far (rad; dotted: median random)")
-        ax.set_title(f"{family}, {energy:g} J")
+        ax.set_xlabel("episodes run (random draws, then the search)")
+        ax.set_ylabel("worst cost so far (rad)")
+        ax.set_title(f"{family}, {energy:g} J (one line per search seed)")
         ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -50,6 +50,7 @@ from train.studies.worst_case import (
     check_targets,
     controller_gains,
     evaluate_task,
+    is_wrapping,
     replay,
     replay_all,
 )
@@ -65,8 +66,25 @@ __all__ = [
 ]
 
 
-def study_name(controller: str, family: str, energy_j: float, kind: str) -> str:
-    return f"{controller}|{family}|{energy_j:g}|{kind}"
+def study_name(controller: str, family: str, energy_j: float, kind: str, seed: int) -> str:
+    """``<controller>|<family>|<energy>|<kind>|seed<k>``, kind "random" or "search<r>" (the
+    r-th CMA-ES run, r restarts in)."""
+    return f"{controller}|{family}|{energy_j:g}|{kind}|seed{seed}"
+
+
+def kinds(cfg: AdversaryConfig) -> list[str]:
+    """The studies of one seed, in the order they run: the random draws, then each CMA-ES run."""
+    return ["random", *(f"search{r}" for r in range(cfg.restarts + 1))]
+
+
+def run_budget(cfg: AdversaryConfig, kind: str) -> int:
+    """Episodes of one study: ``budget`` random ones; the searched ``budget`` split over the
+    CMA-ES runs (the remainder to the last)."""
+    if kind == "random":
+        return cfg.budget
+    runs, r = cfg.restarts + 1, int(kind.removeprefix("search"))
+    share = cfg.budget // runs
+    return share + (cfg.budget - share * runs if r == runs - 1 else 0)
 
 
 def run_search(
@@ -85,7 +103,7 @@ def run_search(
     check_targets(cfg)
     run = open_run(
         cfg.out, "optuna.journal", _config_dict(cfg), resume=resume, force=force,
-        free=("workers", "out", "budget"),  # a resume may extend the budget
+        free=("workers", "out", "budget"),  # a resume may extend the budget: each run grows
         saved_required=False,
     )  # fmt: skip
     out, journal = run.out, run.results
@@ -97,8 +115,12 @@ def run_search(
             for family in cfg.families:
                 for energy in cfg.energies_j:
                     target = Searchable(cfg, family, energy)
-                    for kind in ("random", "search"):  # the search starts at the random best
-                        _run_study(optuna, storage, pool, cfg, controller, target, kind, progress)
+                    for seed in cfg.search_seeds:
+                        for kind in kinds(cfg):  # each search starts from all run before
+                            _run_study(
+                                optuna, storage, pool, cfg, controller, target, kind, seed,
+                                progress,
+                            )  # fmt: skip
     _write_results(optuna, storage, cfg, out)
     return out
 
@@ -111,28 +133,35 @@ def _run_study(
     controller: str,
     target: Searchable,
     kind: str,
+    seed: int,
     progress: bool,
 ) -> None:
-    name = study_name(controller, target.family, target.energy_j, kind)
-    if kind == "search":
+    name = study_name(controller, target.family, target.energy_j, kind, seed)
+    budget = run_budget(cfg, kind)
+    source: list[Any] = []
+    if kind != "random":
         # Warm-started CMA-ES (WS-CMA-ES): its initial distribution comes from the best of
-        # the random draws. Failure regions can be small and far from the centre of the
-        # box, where a search started at the centre settles (seen: 0/200 searched vs 14/200
-        # random draws unstable for the passivity controller at 2 J on the iiwa).
-        random_name = study_name(controller, target.family, target.energy_j, "random")
-        source = optuna.load_study(study_name=random_name, storage=storage).get_trials(
-            deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)
-        )
+        # the episodes this seed ran before (the random draws, then each earlier run).
+        # Failure regions can be small and far from the centre of the box, where a search
+        # started at the centre settles (seen: 0/200 searched vs 14/200 random draws
+        # unstable for the passivity controller at 2 J on the iiwa). Each restart doubles
+        # the population (IPOP's schedule).
+        r = int(kind.removeprefix("search"))
+        for earlier in kinds(cfg)[: r + 1]:
+            source += optuna.load_study(
+                study_name=study_name(controller, target.family, target.energy_j, earlier, seed),
+                storage=storage,
+            ).get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
         with warnings.catch_warnings():  # source_trials is "experimental" in Optuna 4-5
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
             sampler = optuna.samplers.CmaEsSampler(
-                source_trials=list(source),
-                seed=cfg.seed,
-                popsize=cfg.popsize,
+                source_trials=source, popsize=cfg.popsize * 2**r,
+                # "box" is the search before issue 38, seeded as it was: it repeats exactly
+                seed=seed if cfg.space == "box" else _draw_seed(seed, 2 + r),
                 warn_independent_sampling=False,
-            )
+            )  # fmt: skip
     else:
-        sampler = optuna.samplers.RandomSampler(seed=_draw_seed(cfg.seed, 0))  # reseeded per draw
+        sampler = optuna.samplers.RandomSampler(seed=_draw_seed(seed, 0))  # reseeded per draw
     study = optuna.create_study(
         study_name=name, storage=storage, sampler=sampler, direction="maximize",
         load_if_exists=True,
@@ -140,37 +169,51 @@ def _run_study(
     Running = optuna.trial.TrialState.RUNNING
     for stale in study.get_trials(deepcopy=False, states=(Running,)):  # an interrupted batch
         study.tell(stale.number, state=optuna.trial.TrialState.FAIL)
-    done = len(study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)))
+    complete = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
+    if kind != "random" and cfg.space != "box" and not study.get_trials(deepcopy=False) and source:
+        # the run's first episode is the worst one so far: a search never ends below where
+        # it started (the worst searched >= the worst random draw)
+        study.enqueue_trial(max(source, key=lambda t: t.value).params)
+    done = len(complete)
     wall_s = float(study.user_attrs.get("wall_s", 0.0))  # summed over batches: resume-safe
-    while done < cfg.budget:
+    restart = 0 if kind == "random" else int(kind.removeprefix("search"))
+    popsize = cfg.popsize * 2**restart
+    while done < budget:
         t0 = time.perf_counter()
         batch = []
-        for i in range(min(cfg.popsize, cfg.budget - done)):
+        for i in range(min(popsize, budget - done)):
             if kind == "random":  # the k-th draw is a function of (seed, k): resume-safe
-                study.sampler = optuna.samplers.RandomSampler(seed=_draw_seed(cfg.seed, done + i))
+                study.sampler = optuna.samplers.RandomSampler(seed=_draw_seed(seed, 1, done + i))
             batch.append(study.ask())
-        specs = [target.spec(target.space(trial)) for trial in batch]
+        params = [target.space(trial) for trial in batch]
+        specs = [target.spec(p) for p in params]
         tasks = [
             (cfg.env_id, controller, spec, cfg.reset_seed, target.episode_s(), target.window(spec),
-             cfg.control_hz, cfg.failure_distance_rad, controller_gains(cfg, controller))
-            for spec in specs
+             cfg.control_hz, cfg.failure_distance_rad, controller_gains(cfg, controller),
+             p.get("s0"))
+            for spec, p in zip(specs, params, strict=True)
         ]  # fmt: skip
-        for trial, spec, outcome in zip(batch, specs, pool.map(evaluate_task, tasks), strict=True):
+        outcomes = pool.map(evaluate_task, tasks)
+        for trial, spec, p, outcome in zip(batch, specs, params, outcomes, strict=True):
             for key, value in dataclasses.asdict(outcome).items():
                 trial.set_user_attr(key, value)
             trial.set_user_attr("spec", spec)
+            if p.get("s0") is not None:
+                trial.set_user_attr("s0", float(p["s0"]))
             study.tell(trial, outcome.cost)
         done += len(batch)
         wall_s += time.perf_counter() - t0
         study.set_user_attr("wall_s", wall_s)
         if progress:
-            print(f"{name}: {done}/{cfg.budget}, worst {study.best_value:.3g} rad", flush=True)
+            print(f"{name}: {done}/{budget}, worst {study.best_value:.3g} rad", flush=True)
 
 
-def _draw_seed(seed: int, k: int) -> int:
-    """The seed of the k-th random draw: an interrupted and resumed search draws exactly
-    what an uninterrupted one does (a sampler seeded once would repeat its first draws)."""
-    return int(np.random.SeedSequence([seed, 1, k]).generate_state(1)[0])
+def _draw_seed(seed: int, *stream: int) -> int:
+    """The seed of a sampler of search seed ``seed``: (seed, 1, k) for the k-th random draw
+    — an interrupted and resumed search draws exactly what an uninterrupted one does (a
+    sampler seeded once would repeat its first draws) — (seed, 0) and (seed, 2 + r) for the
+    others."""
+    return int(np.random.SeedSequence([seed, *stream]).generate_state(1)[0])
 
 
 def _config_dict(cfg: AdversaryConfig) -> dict[str, Any]:
@@ -178,99 +221,155 @@ def _config_dict(cfg: AdversaryConfig) -> dict[str, Any]:
     return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
 
 
+#: The worst episodes whose non-wrapping parameters are checked against the box's bounds.
+WORST_CHECKED = 10
+#: A parameter within this fraction of its range (log range if log-scaled) of a bound is
+#: "on the bound".
+BOUND_MARGIN = 0.02
+
+
+def on_bound(trials: list[Any]) -> list[str]:
+    """The non-wrapping parameters (sorted) of ``trials`` within :data:`BOUND_MARGIN` of a
+    bound of their distribution."""
+    hits = set()
+    for t in trials:
+        for name, value in t.params.items():
+            dist = t.distributions[name]
+            if is_wrapping(name) or not hasattr(dist, "low"):
+                continue
+            lo, hi, v = float(dist.low), float(dist.high), float(value)
+            if getattr(dist, "log", False):
+                lo, hi, v = np.log(lo), np.log(hi), np.log(v)
+            width = hi - lo
+            if width > 0 and min(v - lo, hi - v) <= BOUND_MARGIN * width:
+                hits.add(name)
+    return sorted(hits)
+
+
 def _write_results(optuna: Any, storage: Any, cfg: AdversaryConfig, out: Path) -> None:
     import pandas as pd
 
-    rows, worst, wall_s = [], {}, 0.0
+    rows, worst, bounds, wall_s = [], {}, {}, 0.0
     for controller in cfg.controllers:
         for family in cfg.families:
             for energy in cfg.energies_j:
-                for kind in ("search", "random"):
-                    name = study_name(controller, family, energy, kind)
-                    study = optuna.load_study(study_name=name, storage=storage)
-                    wall_s += float(study.user_attrs.get("wall_s", 0.0))
-                    complete = study.get_trials(states=(optuna.trial.TrialState.COMPLETE,))
-                    for t in complete[: cfg.budget]:
-                        attrs = dict(t.user_attrs)
-                        spec = yaml.safe_dump(attrs.pop("spec"), default_flow_style=True).strip()
-                        rows.append(
-                            {"controller": controller, "family": family, "energy_j": energy,
-                             "kind": kind, "trial": t.number, "cost_rad": t.value, **attrs,
-                             "spec": spec}
-                        )  # fmt: skip
-                    # the worst case is the worst episode run, searched or random (a
-                    # random draw can hit a failure region the search's Gaussian missed)
-                    best = max(complete[: cfg.budget], key=lambda t: t.value, default=None)
-                    cell = worst.setdefault(controller, {}).setdefault(family, {})
-                    key = f"{energy:g}"
-                    if best is not None and (key not in cell or best.value > cell[key]["cost_rad"]):
-                        cell[key] = {
-                            "cost_rad": best.value,
-                            "found_by": kind,
-                            "unstable": best.user_attrs["unstable"],
-                            "work_j": best.user_attrs["work_j"],
-                            "spec": best.user_attrs["spec"],
-                            "gains": controller_gains(cfg, controller),
-                        }
+                cell = worst.setdefault(controller, {}).setdefault(family, {})
+                key = f"{energy:g}"
+                runs = []
+                for seed in cfg.search_seeds:
+                    evaluation = 0
+                    for kind in kinds(cfg):
+                        name = study_name(controller, family, energy, kind, seed)
+                        study = optuna.load_study(study_name=name, storage=storage)
+                        wall_s += float(study.user_attrs.get("wall_s", 0.0))
+                        complete = study.get_trials(states=(optuna.trial.TrialState.COMPLETE,))
+                        complete = complete[: run_budget(cfg, kind)]
+                        runs += complete
+                        for t in complete:
+                            attrs = dict(t.user_attrs)
+                            spec = yaml.safe_dump(attrs.pop("spec"), default_flow_style=True)
+                            rows.append(
+                                {"controller": controller, "family": family, "energy_j": energy,
+                                 "seed": seed, "kind": "random" if kind == "random" else "search",
+                                 "run": kind, "trial": t.number, "evaluation": evaluation,
+                                 "cost_rad": t.value, **attrs, "spec": spec.strip()}
+                            )  # fmt: skip
+                            evaluation += 1
+                        # the worst case is the worst episode run, searched or random (a
+                        # random draw can hit a failure region the search's Gaussian missed)
+                        best = max(complete, key=lambda t: t.value, default=None)
+                        if best is not None and (
+                            key not in cell or best.value > cell[key]["cost_rad"]
+                        ):
+                            cell[key] = {
+                                "cost_rad": best.value,
+                                "found_by": "random" if kind == "random" else "search",
+                                "seed": seed,
+                                "unstable": best.user_attrs["unstable"],
+                                "work_j": best.user_attrs["work_j"],
+                                "spec": best.user_attrs["spec"],
+                                "s0": best.user_attrs.get("s0"),
+                                "gains": controller_gains(cfg, controller),
+                            }
+                ten = sorted(runs, key=lambda t: t.value, reverse=True)[:WORST_CHECKED]
+                bounds[(controller, family, float(energy))] = on_bound(ten)
     df = pd.DataFrame(rows)
     df.to_csv(out / "trials.csv", index=False, float_format="%.17g")
     replay = {
         "env_id": cfg.env_id, "reset_seed": cfg.reset_seed, "control_hz": cfg.control_hz,
-        "replay": f"ptrack adversary --replay {out / 'worst.yml'}", "worst": worst,
+        "replay": f"ptrack replay {out / 'worst.yml'}", "worst": worst,
     }  # fmt: skip
     (out / "worst.yml").write_text(yaml.safe_dump(replay, sort_keys=False))
-    summary_frame(df).to_csv(out / "summary.csv", index=False, float_format="%.17g")
-    table = summary_table(df)
+    summary = summary_frame(df, bounds)
+    summary.to_csv(out / "summary.csv", index=False, float_format="%.17g")
+    table = summary_table(summary)
+    space = (
+        "onset and start phase over a whole path period (wrapping), directions on the sphere"
+        if cfg.space == "period"
+        else f"onset in {list(cfg.onset_s)} s, start phase of reset seed {cfg.reset_seed}"
+    )
     (out / "summary.md").write_text(
-        f"{table}\n\nSearch wall time {wall_s:.0f} s ({cfg.budget} searched + {cfg.budget} "
-        f"random episodes per row, reset seed {cfg.reset_seed}, {cfg.env_id}).\n"
+        f"{table}\n\nSearch wall time {wall_s:.0f} s: per row and search seed "
+        f"({cfg.search_seeds}) {cfg.budget} random + {cfg.budget} searched episodes "
+        f"({cfg.restarts + 1} CMA-ES runs, population {cfg.popsize} doubling); {space}; "
+        f"energy {cfg.energy_mode}; {cfg.env_id}. Spread: (max − min) / median of the seeds' "
+        f"worst cases. On a bound: a non-wrapping parameter of the {WORST_CHECKED} worst "
+        f"episodes within {BOUND_MARGIN:.0%} of its range of a bound.\n"
     )
     print(table)
     adversary_plot(df, out / "adversary.png")
 
 
-def summary_frame(df: Any) -> Any:
+def summary_frame(df: Any, bounds: dict[tuple[str, str, float], list[str]] | None = None) -> Any:
     """Per controller × family × energy (a DataFrame, ``summary.csv``): the worst cost
-    found by either kind (``worst_rad``, the one ``worst.yml`` replays), the worst searched
-    and the median and worst random cost (rad), worst searched / median random, the
-    unstable episodes of each kind, and the range of the work the disturbance really did
-    (J)."""
+    found (either kind, any seed: the one ``worst.yml`` replays), the worst searched, the
+    median and worst random cost (rad), worst searched / median random, the seeds' worst
+    cases and their spread (max − min)/median, whether every seed's search reached its
+    random worst, the unstable episodes of each kind, the work the disturbance did (J) and
+    the non-wrapping parameters of the ten worst episodes on a bound."""
     import pandas as pd
 
     rows = []
     for (controller, family, energy), g in df.groupby(["controller", "family", "energy_j"]):
         s, r = g[g["kind"] == "search"], g[g["kind"] == "random"]
         worst, med = float(s["cost_rad"].max()), float(r["cost_rad"].median())
+        per_seed = g.groupby("seed")["cost_rad"].max()
+        search_reached = all(
+            gs.loc[gs["kind"] == "search", "cost_rad"].max()
+            >= gs.loc[gs["kind"] == "random", "cost_rad"].max()
+            for _, gs in g.groupby("seed")
+        )
         rows.append(
             {"controller": controller, "family": family, "energy_j": float(energy),
              "worst_rad": float(g["cost_rad"].max()), "worst_search_rad": worst,
              "median_random_rad": med,
              "worst_random_rad": float(r["cost_rad"].max()), "worst_over_median": worst / med,
+             "seeds": len(per_seed),
+             "seed_worst_rad": " ".join(f"{v:.4g}" for v in per_seed.to_numpy()),
+             "spread": float((per_seed.max() - per_seed.min()) / per_seed.median()),
+             "search_reached_random": search_reached,
              "unstable_search": int(s["unstable"].sum()), "n_search": len(s),
              "unstable_random": int(r["unstable"].sum()), "n_random": len(r),
-             "work_min_j": float(g["work_j"].min()), "work_max_j": float(g["work_j"].max())}
+             "work_min_j": float(g["work_j"].min()), "work_max_j": float(g["work_j"].max()),
+             "on_bound": " ".join((bounds or {}).get((controller, family, float(energy)), []))}
         )  # fmt: skip
     return pd.DataFrame(rows)
 
 
-def summary_table(df: Any) -> str:
-    """Per controller × family × energy: the worst cost found (either kind), worst searched
-    cost, median and worst random cost, worst searched / median random, unstable counts,
-    and the work the disturbance really did."""
+def summary_table(summary: Any) -> str:
+    """Markdown of :func:`summary_frame`'s rows."""
     lines = [
         "| controller | family | energy (J) | worst found (rad) | worst searched (rad) "
-        "| median random (rad) | worst random (rad) | searched / median | unstable (search / "
-        "random) | delivered work (J), min–max |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| median random (rad) | worst random (rad) | seeds' worst (rad) | spread "
+        "| unstable (search / random) | delivered work (J), min–max | on a bound |",
+        "|---|---|---:|---:|---:|---:|---:|---|---:|---:|---:|---|",
     ]
-    for (controller, family, energy), g in df.groupby(["controller", "family", "energy_j"]):
-        s, r = g[g["kind"] == "search"], g[g["kind"] == "random"]
-        worst, med = float(s["cost_rad"].max()), float(r["cost_rad"].median())
+    for _, r in summary.iterrows():
         lines.append(
-            f"| {controller} | {family} | {energy:g} | {float(g['cost_rad'].max()):.3g} "
-            f"| {worst:.3g} | {med:.3g} "
-            f"| {float(r['cost_rad'].max()):.3g} | {worst / med:.1f} "
-            f"| {int(s['unstable'].sum())}/{len(s)} / {int(r['unstable'].sum())}/{len(r)} "
-            f"| {g['work_j'].min():.2f}–{g['work_j'].max():.2f} |"
+            f"| {r['controller']} | {r['family']} | {r['energy_j']:g} | {r['worst_rad']:.3g} "
+            f"| {r['worst_search_rad']:.3g} | {r['median_random_rad']:.3g} "
+            f"| {r['worst_random_rad']:.3g} | {r['seed_worst_rad']} | {r['spread']:.0%} "
+            f"| {r['unstable_search']}/{r['n_search']} / {r['unstable_random']}/{r['n_random']} "
+            f"| {r['work_min_j']:.2f}–{r['work_max_j']:.2f} | {r['on_bound'] or 'none'} |"
         )
     return "\n".join(lines)

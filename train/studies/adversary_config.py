@@ -7,6 +7,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import ptrack_gym  # noqa: F401  (registers the envs)
 from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
@@ -38,18 +39,36 @@ class AdversaryConfig:
     """Disturbance families searched (:data:`FAMILIES`)."""
     energies_j: list[float] = field(default_factory=lambda: [2.0])
     """Energy budgets (J) of the family's ``energy_j``."""
-    energy_mode: str = "home"
-    """Impulse sizing: "home" (the preset's) or "delivered" (``ImpulseTorque``)."""
+    energy_mode: str = "delivered"
+    """Impulse sizing: "delivered" (the impulse changes the moving arm's kinetic energy by
+    ``energy_j`` at its onset: equal work for every controller, ``ImpulseTorque``) or
+    "home" (the preset's: the energy it would give the arm at rest at home)."""
     budget: int = 200
-    """Searched episodes per controller × family × energy; as many random ones besides."""
+    """Searched episodes per controller × family × energy × search seed; as many random
+    ones besides."""
     popsize: int = 8
-    """CMA-ES population (episodes evaluated in parallel per generation)."""
+    """CMA-ES population of the first run (episodes evaluated in parallel per generation);
+    each restart doubles it."""
+    restarts: int = 1
+    """CMA-ES restarts (IPOP's schedule, on a fixed budget): the searched budget is split
+    over ``restarts`` + 1 runs, the r-th with population popsize·2^r, each warm-started from
+    every episode of the seed so far."""
     reset_seed: int = 0
-    """Env reset seed of every episode (the start on the path)."""
-    seed: int = 0
-    """Seed of the samplers."""
+    """Env reset seed of every episode (the start on the path, where ``space`` is "box")."""
+    search_seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
+    """Seeds of the samplers: one random and one searched study per seed; the spread of
+    the worst case over them is reported."""
+    space: str = "period"
+    """The searched space. "period": the start phase s₀ and the onset's phase both span one
+    whole period of the path and wrap around (the onset lies in [onset_s[0], onset_s[0] + S)),
+    and a direction is a point of the unit sphere by angles that wrap; "box": the searches
+    before issue 38 — the onset in the box ``onset_s``, the start phase of ``reset_seed``,
+    directions in the cube [−1, 1]^d, CMA-ES seeded by the search seed and started without
+    the random worst (with ``restarts`` 0 and ``energy_mode`` "home" it repeats those
+    searches exactly)."""
     onset_s: tuple[float, float] = (0.5, 2.0)
-    """Range of the searched onset (s)."""
+    """"period": its low end is the earliest onset (s; the arm settles on the path before);
+    "box": the range of the searched onset (s)."""
     post_s: float = 1.5
     """Length of the cost window after the disturbance (s)."""
     impulse_duration_s: float = 0.05
@@ -106,6 +125,36 @@ class AdversaryConfig:
         lo, hi = self.onset_s
         if not (0 <= lo <= hi) or not (0 < self.frequency_hz[0] <= self.frequency_hz[1]):
             raise InvalidConfigError("onset_s and frequency_hz must be (low, high) ranges")
+        if self.space not in ("period", "box"):
+            raise InvalidConfigError(f"space must be 'period' or 'box', got {self.space!r}")
+        searched = []  # the ranges searched: an empty one leaves nothing to search
+        if self.space == "box" and any(f != "periodic" for f in self.families):
+            searched.append(("onset_s", self.onset_s))
+        if "periodic" in self.families:
+            searched.append(("frequency_hz", self.frequency_hz))
+        for name, (low, high) in searched:
+            if not high > low:
+                raise InvalidConfigError(
+                    f"{name} [{low:g}, {high:g}] is an empty search range: give low < high"
+                )
+        if (
+            not self.search_seeds
+            or len(set(self.search_seeds)) != len(self.search_seeds)
+            or any(isinstance(k, bool) or not isinstance(k, int) for k in self.search_seeds)
+        ):
+            raise InvalidConfigError(
+                f"search_seeds must be distinct integers, not empty, got {self.search_seeds}"
+            )
+        if (
+            isinstance(self.restarts, bool)
+            or not isinstance(self.restarts, int)
+            or not (0 <= self.restarts and self.budget // (self.restarts + 1) >= self.popsize)
+        ):
+            raise InvalidConfigError(
+                f"restarts must be an integer >= 0 leaving each CMA-ES run >= popsize "
+                f"episodes (budget {self.budget} / (restarts + 1) >= {self.popsize}), got "
+                f"{self.restarts!r}"
+            )
         for name in ("post_s", "impulse_duration_s", "push_duration_s", "periodic_s"):
             if not getattr(self, name) > 0:
                 raise InvalidConfigError(f"{name} must be positive")
@@ -114,6 +163,17 @@ class AdversaryConfig:
                 f"energy_mode must be 'home' or 'delivered', got {self.energy_mode!r}"
             )
         profile_for_env_id(self.env_id)  # a known robot (its links: worst_case.check_targets)
+
+
+def saved_config(saved: dict[str, Any]) -> AdversaryConfig:
+    """The config of a search's ``config.yml``, that of a search before issue 38 included:
+    it had one sampler ``seed`` and searched the box (``space`` "box")."""
+    saved = dict(saved)
+    if "seed" in saved:
+        saved["search_seeds"] = [int(saved.pop("seed"))]
+    saved.setdefault("space", "box")
+    saved.setdefault("restarts", 0)
+    return AdversaryConfig(**saved)
 
 
 def load_config(path: Path | None, overrides: Sequence[str]) -> AdversaryConfig:

@@ -45,6 +45,7 @@ from ptrack_gym.disturbances import PRESETS
 from ptrack_gym.errors import InvalidConfigError, InvalidPathError
 from ptrack_gym.metrics import METRIC_NAMES
 from ptrack_gym.robots import ROBOTS
+from train.common import arguments
 from train.common.paired_tests import TooFewPairsError
 from train.common.runs import open_run, worker_count, worker_pool
 from train.common.statistics import hierarchical_bootstrap
@@ -199,6 +200,11 @@ class VerdictConfig:
             start="on_path", failure_distance_rad=self.failure_distance_rad,
             recovery_threshold_rad=0.01, gains=self.gains, path="random", path_seed=path_seed,
         )  # fmt: skip
+
+
+def load_config(path: Path | None, overrides: Sequence[str]) -> VerdictConfig:
+    """The config of a YAML file, with ``field=value`` overrides; unknown keys raise."""
+    return arguments.load_config(VerdictConfig, path, overrides, validate=False)
 
 
 def check_test_paths(robot: str, path_seeds: Sequence[int]) -> None:

@@ -5,6 +5,8 @@ bit-identically)."""
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,7 +20,30 @@ from agents.policy import ControllerPolicy
 from agents.registry import make_controller, tuned_rates
 from ptrack_gym.robots import profile_for_env_id
 from train.evaluation.episode import rollout
-from train.studies.adversary_config import AdversaryConfig
+from train.studies.adversary_config import AdversaryConfig, saved_config
+
+#: Raw ranges of the wrapping parameters: a phase (a fraction of the path period) in
+#: [−0.5, 1.5] and a sphere angle in [−π, 3π], each mapped periodically — two periods
+#: wide, so the seam of the period lies inside the box, not on its edge.
+PHASE_RANGE = (-0.5, 1.5)
+ANGLE_RANGE = (-math.pi, 3.0 * math.pi)
+
+
+def sphere_point(angles: Sequence[float]) -> list[float]:
+    """The point of the unit sphere S^{d−1} with hyperspherical angles φ₁…φ_{d−1}:
+    x₁ = cos φ₁, x_k = sin φ₁ ⋯ sin φ_{k−1} cos φ_k, x_d = sin φ₁ ⋯ sin φ_{d−1}. Every
+    coordinate is 2π-periodic in every angle, so the map wraps in each."""
+    x, carry = [], 1.0
+    for phi in angles:
+        x.append(carry * math.cos(phi))
+        carry *= math.sin(phi)
+    return [*x, carry]
+
+
+def is_wrapping(name: str) -> bool:
+    """Whether a searched parameter wraps around (no bound to sit on): the phases and the
+    sphere angles of the "period" space."""
+    return name in ("start_phase", "onset_phase") or (name[:1] == "a" and name[1:].isdigit())
 
 
 @dataclass(frozen=True)
@@ -34,19 +59,41 @@ class Searchable:
         return profile_for_env_id(self.cfg.env_id).n
 
     @property
+    def period_s(self) -> float:
+        """The period S of the env's (default) path (s)."""
+        return float(profile_for_env_id(self.cfg.env_id).path_period_s)
+
+    @property
     def links(self) -> list[str | None]:
         return list(self.cfg.push_links) or [None] if self.family == "push" else [None]
+
+    @property
+    def dims(self) -> int:
+        """Dimension of the direction: 3 (a world direction) for a push, else n."""
+        return 3 if self.family == "push" else self.n
 
     def space(self, trial: Any) -> dict[str, Any]:
         """Suggest this family's parameters on an Optuna trial."""
         c = self.cfg
         params: dict[str, Any] = {}
+        period = c.space == "period"
+        if period:
+            phase = trial.suggest_float("start_phase", *PHASE_RANGE) % 1.0
+            params["s0"] = phase * self.period_s
         if self.family == "periodic":
             params["frequency_hz"] = trial.suggest_float("frequency_hz", *c.frequency_hz, log=True)
+        elif period:
+            phase = trial.suggest_float("onset_phase", *PHASE_RANGE) % 1.0
+            params["onset_s"] = c.onset_s[0] + phase * self.period_s
         else:
             params["onset_s"] = trial.suggest_float("onset_s", *c.onset_s)
-        dims = 3 if self.family == "push" else self.n
-        params["direction"] = [trial.suggest_float(f"x{i}", -1.0, 1.0) for i in range(dims)]
+        if period:
+            angles = [trial.suggest_float(f"a{i}", *ANGLE_RANGE) for i in range(self.dims - 1)]
+            params["direction"] = sphere_point(angles)
+        else:
+            params["direction"] = [
+                trial.suggest_float(f"x{i}", -1.0, 1.0) for i in range(self.dims)
+            ]
         if self.family == "push" and len(self.cfg.push_links) > 1:
             params["link"] = trial.suggest_categorical("link", list(self.cfg.push_links))
         elif self.family == "push" and self.cfg.push_links:
@@ -55,10 +102,9 @@ class Searchable:
 
     def midpoint(self, link: str | None) -> dict[str, Any]:
         """A valid parameter set (for the checks before running)."""
-        dims = 3 if self.family == "push" else self.n
-        params: dict[str, Any] = {"onset_s": self.cfg.onset_s[0], "direction": [1.0] * dims}
+        params: dict[str, Any] = {"onset_s": self.cfg.onset_s[0], "direction": [1.0] * self.dims}
         if self.family == "periodic":
-            params = {"frequency_hz": self.cfg.frequency_hz[0], "direction": [1.0] * dims}
+            params = {"frequency_hz": self.cfg.frequency_hz[0], "direction": [1.0] * self.dims}
         if link is not None:
             params["link"] = link
         return params
@@ -80,6 +126,8 @@ class Searchable:
                 "type": "push", "energy_j": self.energy_j, "duration_s": c.push_duration_s,
                 "onset_s": float(params["onset_s"]), "direction": direction,
             }  # fmt: skip
+            if c.energy_mode == "delivered":  # "home" specs stay as they were written
+                spec["energy_mode"] = "delivered"
             if params.get("link") is not None:
                 spec["link"] = params["link"]
             return spec
@@ -96,12 +144,18 @@ class Searchable:
         return end, end + self.cfg.post_s
 
     def episode_s(self) -> float:
+        """The episode's length (s): the latest onset, the pulse and the cost window."""
         if self.family == "periodic":
             return self.cfg.periodic_s
         duration = (
             self.cfg.impulse_duration_s if self.family == "impulse" else self.cfg.push_duration_s
         )
-        return self.cfg.onset_s[1] + duration + self.cfg.post_s
+        last_onset = (
+            self.cfg.onset_s[0] + self.period_s
+            if self.cfg.space == "period"
+            else self.cfg.onset_s[1]
+        )
+        return last_onset + duration + self.cfg.post_s
 
 
 @dataclass(frozen=True)
@@ -125,9 +179,10 @@ def evaluate(
     control_hz: float,
     failure_distance_rad: float,
     gains: str | dict[str, Any] = "default",
+    s0: float | None = None,
 ) -> Outcome:
-    """One episode of ``controller`` (with ``gains``) under ``spec`` from ``reset_seed``;
-    deterministic."""
+    """One episode of ``controller`` (with ``gains``) under ``spec`` from ``reset_seed``,
+    started on the path at phase ``s0`` (s; None: the reset seed's); deterministic."""
     steps = round(episode_s * control_hz)
     env = gym.make(
         env_id,
@@ -138,7 +193,8 @@ def evaluate(
     )
     try:
         policy = ControllerPolicy(env, make_controller(controller, env, gains))
-        record, _ = rollout(env, policy, reset_seed)
+        options = None if s0 is None else {"s0": float(s0)}
+        record, _ = rollout(env, policy, reset_seed, reset_options=options)
     finally:
         env.close()
     t, dist = record.t_s, record.path_distance
@@ -172,12 +228,13 @@ def replay(worst_yml: Path, controller: str, family: str, energy_j: float) -> Ou
     """Re-run a worst case of ``worst.yml`` (bit-identical to the searched episode)."""
     data = yaml.safe_load(worst_yml.read_text())
     entry = data["worst"][controller][family][f"{energy_j:g}"]
-    cfg = AdversaryConfig(**{**yaml.safe_load((worst_yml.parent / "config.yml").read_text())})
+    cfg = saved_config(yaml.safe_load((worst_yml.parent / "config.yml").read_text()))
     target = Searchable(cfg, family, energy_j)
     spec = entry["spec"]
     return evaluate(
         cfg.env_id, controller, spec, cfg.reset_seed, target.episode_s(), target.window(spec),
         cfg.control_hz, cfg.failure_distance_rad, entry.get("gains", cfg.gains),
+        entry.get("s0"),
     )  # fmt: skip
 
 
