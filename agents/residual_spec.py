@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from agents.energy_tank import EnergyTank
 from agents.registry import CONTROLLER_NAMES, PRIOR_BASES, check_gain_choice
 from ptrack_gym.errors import InvalidConfigError
 
@@ -32,6 +33,8 @@ DEFAULT_SCALE_FRACTION = 0.1
 #: The base name of a *network* base: a saved pure policy (``base_model``, a model folder)
 #: run as a controller (:class:`~agents.network.NetworkController`).
 NETWORK_BASE = "network"
+#: The bases an energy-tank residual may have: the passivity laws (their dissipation fills it).
+TANK_BASES: tuple[str, ...] = ("passivity", "passivity_paper")
 #: Every base a residual may have: the registry's controllers and a network.
 RESIDUAL_BASES: tuple[str, ...] = (*CONTROLLER_NAMES, NETWORK_BASE)
 
@@ -73,6 +76,17 @@ class ResidualSpec:
     prior_gain_per_rad: float = 0.0
     """g ≥ 0 (1/rad) of the control prior a_prior = clip(g (q_r(s) − q), −1, 1); 0: none;
     > 0 needs a base of :data:`agents.registry.PRIOR_BASES`."""
+    tank: bool = False
+    """Gate the residual by an energy tank filled by the passivity law's own dissipation
+    (:mod:`agents.energy_tank`); needs a base of :data:`TANK_BASES`."""
+    tank_beta: float = 0.5
+    """β ∈ [0, 1]: the fraction of the law's dissipation that fills the tank."""
+    tank_initial_j: float = 0.5
+    """T(0) (J), in [``tank_floor_j``, ``tank_cap_j``]."""
+    tank_floor_j: float = 0.01
+    """T_min > 0 (J): an injecting residual is held back so the tank stays above it."""
+    tank_cap_j: float = 2.0
+    """T_max (J): the most the tank holds."""
 
     def __post_init__(self) -> None:
         if self.base not in RESIDUAL_BASES:
@@ -91,6 +105,15 @@ class ResidualSpec:
                 f"include_controller_state must be True or False, got "
                 f"{self.include_controller_state!r}"
             )
+        if not isinstance(self.tank, bool):
+            raise InvalidConfigError(f"tank must be True or False, got {self.tank!r}")
+        if self.tank:
+            if self.base not in TANK_BASES:
+                raise InvalidConfigError(
+                    f"an energy tank is filled by the passivity law's dissipation: its base "
+                    f"must be one of {TANK_BASES}, got {self.base!r}"
+                )
+            self.energy_tank()  # checks the tank's parameters
         if self.scale_nm is not None:
             if self.scale_accel_rad_s2 is not None:
                 raise InvalidConfigError("give scale_nm or scale_accel_rad_s2, not both")
@@ -112,6 +135,10 @@ class ResidualSpec:
                 f"unknown residual option(s) {unknown}; known: {list(SPEC_FIELDS)}"
             )
         return dataclasses.replace(start if start is not None else cls(), **options)
+
+    def energy_tank(self) -> EnergyTank:
+        """A new tank of this spec's parameters (whether or not ``tank`` is set)."""
+        return EnergyTank(self.tank_beta, self.tank_initial_j, self.tank_floor_j, self.tank_cap_j)
 
     def options(self) -> dict[str, Any]:
         """Every field, name → value (plain Python values: str, float, tuple, bool, None)."""

@@ -54,6 +54,15 @@ Safeguards (both off by default, so a = 0 stays bit-identical to the base):
   behaviour-cloning pull toward a = 0 becomes a pull toward it. ``info["residual_prior"]``
   is a_prior; the action penalty stays on the learned a.
 
+* ``tank`` — an energy tank (:mod:`agents.energy_tank`, passivity bases): the residual,
+  after the gate and the prior, is scaled by λ ∈ [0, 1] so the energy it injects is paid
+  from a tank filled only by the law's own dissipation; the tank is settled with the work
+  the residual really did, (q_{k+1} − q_k)ᵀ(τ_applied − τ_base), at the measured states.
+  Storage plus tank then grows by no more than the pump's, the re-synchronisation's and the
+  disturbance's work, whatever the policy outputs. ``info["tank_level_j"]`` T after the
+  step, ``info["tank_scale"]`` λ, ``info["tank_withheld_j"]`` the energy held back this
+  episode so far.
+
 Info (every step): ``tau_base_nm`` τ_base, ``tau_residual_nm`` γ scale ⊙ a_eff or
 M(q) γ α a_eff (a_eff = clip(a, −1, 1) without a prior; N·m, before the env's own
 clipping of the sum to τ_max), ``controller`` the controller's ``diagnostics()``; reset's
@@ -193,6 +202,8 @@ class ResidualWrapper(
                 )
             self._prior_features = feats
             self._prior_cols = np.array([feats.names.index(name) for name in names])
+        self.tank = spec.energy_tank() if spec.tank else None
+        """The energy tank (None without ``tank``)."""
 
     def _scale_nm(self, spec: ResidualSpec) -> FloatArray:
         """The torque authority (N·m, (n,)): ``spec.scale_nm`` broadcast to the n joints,
@@ -256,6 +267,9 @@ class ResidualWrapper(
         self.controller.reset(q, qd, u.s0 + u.t)
         self._base_ratio = np.zeros(self.n)
         info["controller"] = self.controller.diagnostics()
+        if self.tank is not None:
+            self.tank.reset()
+            info["tank_level_j"] = self.tank.level_j
         self._last_obs = self._augment(obs)
         return self._last_obs, info
 
@@ -295,10 +309,27 @@ class ResidualWrapper(
             tau_res = (gate * self.scale_nm) * a_eff  # (n,) N·m; γ = 1 exactly without a gate
         else:  # M(q) γ α a: the acceleration α a (rad/s²) on the nominal model (cached M)
             tau_res = u.model.mass_matrix(q) @ ((gate * self.scale_accel_rad_s2) * a_eff)
+        tank_scale = 1.0
+        if self.tank is not None:
+            tank_scale = self.tank.gate(u.model, q, qd, tau_base, tau_res, u.dt)
+            tau_res = tank_scale * tau_res
         if isinstance(self.controller, ObservesAppliedTorque):  # e.g. a momentum observer
             self.controller.applied_torque(tau_base + tau_res, u.dt)
         inner_action = torque_to_action(tau_base + tau_res, self.torque_limits_nm)
         obs, reward, terminated, truncated, info = self.env.step(inner_action)
+        if self.tank is not None:
+            q_next, _ = u.measured_joint_state()
+            # the torque applied beyond the base's, the limits' clipping included (the
+            # action's float32 rounding, ~1e-7 of τ, is left to the law's own residue)
+            limits = self.torque_limits_nm
+            applied = np.minimum(np.maximum(tau_base + tau_res, -limits), limits)
+            work = float((q_next - q) @ (applied - tau_base))
+            if math.isfinite(work):
+                dissipation = float(self.controller.diagnostics().get("dissipation", 0.0))
+                self.tank.settle(work, dissipation, u.dt)
+            info["tank_level_j"] = self.tank.level_j
+            info["tank_scale"] = tank_scale
+            info["tank_withheld_j"] = self.tank.withheld_j
         if self.action_penalty > 0.0:
             bonus = self.action_penalty * (1.0 - float(a @ a) / self.n)
             reward = float(reward) + bonus

@@ -1,0 +1,232 @@
+"""The tank-gated residual (``agents/energy_tank.py``, ``../shared/TANK.md``): on the exact
+closed loop (model = plant), storage + tank never grows by more than the pump's, the
+re-synchronisation's and the disturbance's work, whatever the residual outputs — random,
+adversarial, or pushing energy in at every step — while the same residual without a tank
+breaks that balance by joules; an empty tank holds an injecting residual back entirely;
+the tank fills only with the law's dissipation; bad options are refused."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import ptrack_gym  # noqa: F401  (registers the envs)
+from agents.energy_tank import EnergyTank
+from agents.residual_spec import ResidualSpec
+from agents.residual_wrapper import ResidualWrapper
+from ptrack_gym.errors import InvalidConfigError
+
+TWO_LINK = "ptrack_gym/TwoLinkTrack-v0"
+Policy = Callable[[np.random.Generator, ResidualWrapper], np.ndarray]
+
+
+def _next_velocity(w: ResidualWrapper, tau_base: np.ndarray) -> np.ndarray:
+    """q̇ after the coming step under ``tau_base`` alone, on the nominal (= exact) model."""
+    u = w.tracking_env
+    q, qd = u.measured_joint_state()
+    h = u.model.inverse_dynamics(q, qd, np.zeros_like(q))
+    return qd + u.dt * np.linalg.solve(u.model.mass_matrix(q), tau_base - h)
+
+
+def inject(rng: np.random.Generator, w: ResidualWrapper) -> np.ndarray:
+    """An adversary: full authority along the arm's next velocity (predicted with the base's
+    last torque, which moves little in a step)."""
+    v = _next_velocity(w, getattr(w, "_last_tau_base", np.zeros(w.n)))
+    return np.where(v >= 0.0, 1.0, -1.0)
+
+
+def toward_motion(rng: np.random.Generator, w: ResidualWrapper) -> np.ndarray:
+    """Full authority along the measured velocity."""
+    qd = w.tracking_env.measured_joint_state()[1]
+    return np.where(qd >= 0.0, 1.0, -1.0)
+
+
+def uniform(rng: np.random.Generator, w: ResidualWrapper) -> np.ndarray:
+    return rng.uniform(-1.0, 1.0, size=w.n)
+
+
+def bang(rng: np.random.Generator, w: ResidualWrapper) -> np.ndarray:
+    """Random corners of the action box, switching every few steps."""
+    if not hasattr(w, "_bang") or rng.random() < 0.2:
+        w._bang = rng.choice([-1.0, 1.0], size=w.n)  # type: ignore[attr-defined]
+    return w._bang  # type: ignore[attr-defined]
+
+
+def zero(rng: np.random.Generator, w: ResidualWrapper) -> np.ndarray:
+    return np.zeros(w.n)
+
+
+def episode(policy: Policy, tank: bool, disturbance=None, seed: int = 0, steps: int = 3000,
+            **options) -> dict:  # fmt: skip
+    """One episode of the two-link passivity controller with a residual of 0.2 τ_max: the
+    balance excess (E + T)(end) − (E + T)(0) − ∫(P_pump + P_sync) − W_d (J), the tank's
+    lowest level, the joint trajectory and whether the base saturated."""
+    env = gym.make(TWO_LINK, control_hz=1000.0, disturbance=disturbance)
+    w = ResidualWrapper(env, "passivity", tank=tank, scale_fraction=0.2, **options)
+    w.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    u = w.tracking_env
+    energy, levels, qs, flows, saturated = [], [], [], 0.0, False
+    info: dict = {}
+    try:
+        for _ in range(steps):
+            _, _, terminated, truncated, info = w.step(policy(rng, w))
+            w._last_tau_base = info["tau_base_nm"]  # type: ignore[attr-defined]
+            d = info["controller"]
+            energy.append(d["energy"])  # E at the step's start: the flows of the steps before
+            levels.append(info.get("tank_level_j", 0.0))
+            qs.append(u.joint_state()[0])
+            flows += (d["pump_power"] + d["sync_power"]) * u.dt
+            saturated |= bool(np.any(np.abs(info["tau_base_nm"]) > u.torque_limits_nm))
+            assert not (terminated or truncated)
+        last = (d["pump_power"] + d["sync_power"]) * u.dt
+        t0 = w.residual_spec.tank_initial_j if tank else 0.0
+        excess = (energy[-1] + levels[-2]) - (energy[0] + t0) - (flows - last)
+        excess -= info["disturbance_work_j"]
+        return {
+            "excess": excess, "min_level": min(levels), "q": np.array(qs),
+            "saturated": saturated, "info": info, "tank": w.tank,
+        }  # fmt: skip
+    finally:
+        w.close()
+
+
+#: The discrete-time residue of the law's own balance here (measured: |excess| ≈ 3e-3 J
+#: with no residual, undisturbed and under an impulse).
+RESIDUE_J = 0.01
+
+
+@pytest.mark.parametrize("policy", [inject, toward_motion, uniform, bang])
+@pytest.mark.parametrize(("disturbance", "seed"), [(None, 0), (("impulse", 1.0), 3),
+                                                   (("periodic", 1.0), 5)])  # fmt: skip
+def test_storage_plus_tank_grows_only_by_pump_sync_and_disturbance_work(policy, disturbance, seed):
+    run = episode(policy, tank=True, disturbance=disturbance, seed=seed)
+    assert not run["saturated"]  # premise: the law's torque itself within the limits
+    assert run["excess"] <= RESIDUE_J
+    assert run["min_level"] >= 0.0 and run["tank"].overdrawn_j == 0.0
+
+
+@pytest.mark.parametrize("policy", [inject, toward_motion])
+def test_without_the_tank_the_same_residual_breaks_the_balance(policy):
+    assert episode(policy, tank=False)["excess"] > 5.0  # joules from nowhere
+    assert episode(policy, tank=True)["excess"] <= RESIDUE_J
+
+
+def test_an_empty_tank_holds_an_injecting_residual_back_entirely():
+    """Empty (at its floor) and never filled (β = 0): a network that pushes energy in at
+    every step — along the next velocity the base alone would give, read off a twin run of
+    the base in lockstep — leaves the arm exactly on the base's own trajectory."""
+    empty = {"tank_beta": 0.0, "tank_initial_j": 0.01, "tank_floor_j": 0.01}
+    pair = [
+        ResidualWrapper(gym.make(TWO_LINK, control_hz=1000.0), "passivity", tank=tank,
+                        scale_fraction=0.2, **(empty if tank else {}))
+        for tank in (True, False)
+    ]  # fmt: skip
+    gated, base = pair
+    for w in pair:
+        w.reset(seed=0)
+    try:
+        for _ in range(1500):
+            q_before = gated.tracking_env.joint_state()[0]
+            _, _, _, _, ref = base.step(np.zeros(2))  # the base alone: its torque this step
+            v = _next_velocity(gated, ref["tau_base_nm"])
+            _, _, _, _, info = gated.step(np.where(v >= 0.0, 1.0, -1.0))
+            np.testing.assert_array_equal(info["tau_base_nm"], ref["tau_base_nm"])
+            np.testing.assert_array_equal(
+                gated.tracking_env.joint_state()[0], base.tracking_env.joint_state()[0]
+            )
+            assert info["tank_scale"] == 0.0
+            assert np.any(gated.tracking_env.joint_state()[0] != q_before)
+        assert info["tank_withheld_j"] > 0.5  # what it wanted to inject (J)
+    finally:
+        for w in pair:
+            w.close()
+
+
+def test_the_tank_fills_only_with_the_laws_dissipation_up_to_its_cap():
+    env = gym.make(TWO_LINK, control_hz=1000.0, disturbance=("impulse", 1.0))
+    # the law dissipates little here (∫D ≈ 4.5e-6 J over the 3 s): a cap 1e-6 J above T(0)
+    w = ResidualWrapper(env, "passivity", tank=True, tank_beta=0.5, tank_initial_j=0.1,
+                        tank_cap_j=0.100001)  # fmt: skip
+    w.reset(seed=3)
+    level, capped = 0.1, False
+    for _ in range(3000):
+        _, _, _, _, info = w.step(np.zeros(2))
+        expected = level + 0.5 * info["controller"]["dissipation"] * w.tracking_env.dt
+        capped |= expected > 0.100001
+        level = min(0.100001, expected)
+        assert info["tank_level_j"] == pytest.approx(level, abs=1e-12)
+        assert info["tank_scale"] == 1.0
+    assert capped  # the cap was reached and held
+    w.close()
+
+
+def test_the_tank_reports_in_info_and_restarts_every_episode():
+    env = gym.make(TWO_LINK, control_hz=1000.0)
+    w = ResidualWrapper(env, "passivity", tank=True, scale_fraction=0.2)
+    _, info = w.reset(seed=0)
+    assert info["tank_level_j"] == 0.5
+    for _ in range(2000):
+        _, _, _, _, info = w.step(np.ones(2))
+    assert {"tank_level_j", "tank_scale", "tank_withheld_j"} <= set(info)
+    assert info["tank_level_j"] < 0.5
+    _, info = w.reset(seed=1)
+    assert info["tank_level_j"] == 0.5 and w.tank.withheld_j == 0.0
+    w.close()
+
+
+def test_a_residual_id_carries_the_tank_options_and_passes_the_checkers():
+    import warnings
+
+    from gymnasium.utils.env_checker import check_env
+
+    sb3_checker = pytest.importorskip(
+        "stable_baselines3.common.env_checker", reason="the optional 'train' extra (SB3)"
+    )
+    env = gym.make("ptrack_gym/TwoLinkTrack-Residual-Passivity-v0", tank=True, tank_beta=0.3)
+    tank = env.get_wrapper_attr("tank")
+    assert tank is not None and tank.beta == 0.3
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*different from the unwrapped.*")
+        check_env(env, skip_render_check=True)
+    sb3_checker.check_env(env, warn=False)
+    env.close()
+
+
+@pytest.mark.parametrize(
+    ("options", "match"),
+    [
+        ({"base": "computed_torque", "tank": True}, "filled by the passivity law"),
+        ({"tank": True, "tank_beta": 1.5}, "tank_beta"),
+        ({"tank": True, "tank_floor_j": 0.0}, "0 < tank_floor_j"),
+        ({"tank": True, "tank_initial_j": 0.001}, "tank_initial_j"),
+        ({"tank": True, "tank_cap_j": 0.1}, "tank_cap_j"),
+        ({"tank": True, "tank_beta": float("nan")}, "finite"),
+        ({"tank": "yes"}, "tank must be True or False"),
+    ],
+)
+def test_bad_tank_options_are_refused(options, match):
+    with pytest.raises(InvalidConfigError, match=match):
+        ResidualSpec.from_options(options)
+
+
+def test_the_gate_scales_to_the_budget_exactly_on_the_predicted_work():
+    """λ solves a₁λ + a₂λ² = T − T_min where the whole residual would overdraw."""
+    from ptrack_gym.robots import robot_profile
+    from ptrack_gym.robots.model import PinocchioModel
+
+    model = PinocchioModel(robot_profile("two_link"))
+    tank = EnergyTank(beta=0.0, initial_j=0.02, floor_j=0.01, cap_j=1.0)
+    q, qd = np.array([0.3, -0.4]), np.array([1.5, -2.0])
+    tau_base, tau_res = np.array([2.0, 1.0]), np.array([30.0, -20.0])
+    lam = tank.gate(model, q, qd, tau_base, tau_res, 1e-3)
+    m = model.mass_matrix(q)
+    h = model.inverse_dynamics(q, qd, np.zeros(2))
+    v = qd + 1e-3 * np.linalg.solve(m, tau_base + lam * tau_res - h)
+    assert 0.0 < lam < 1.0
+    assert 1e-3 * v @ (lam * tau_res) == pytest.approx(0.01, rel=1e-9)
+    # a dissipative correction passes whole
+    assert tank.gate(model, q, qd, tau_base, -tau_res, 1e-3) == 1.0
