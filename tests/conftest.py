@@ -1,8 +1,9 @@
-"""Shared pytest fixtures: environment factories that always close what they made."""
+"""Shared pytest fixtures: environment factories that always close what they made, and a
+path seed made to have no admissible random path."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import gymnasium as gym
@@ -43,3 +44,26 @@ def make_env() -> Iterator[EnvFactory]:
     factory = EnvFactory()
     yield factory
     factory.close_all()
+
+
+@pytest.fixture
+def no_admissible_path(monkeypatch: pytest.MonkeyPatch) -> Callable[[int], None]:
+    """``no_admissible_path(seed)``: from then on, the random path of ``seed`` (any robot)
+    has no admissible draw — ``random_multisine`` raises as it does after its last try."""
+    import numpy as np
+
+    import ptrack_gym.paths as paths
+
+    real = paths.random_multisine
+    refused: set[int] = set()
+
+    def picky(profile, rng, *args, **kw):  # type: ignore[no-untyped-def]
+        for seed in refused:
+            if rng.bit_generator.state == np.random.default_rng(seed).bit_generator.state:
+                raise paths.InvalidPathError(
+                    f"no admissible random path for {profile.name} in 200 draws"
+                )
+        return real(profile, rng, *args, **kw)
+
+    monkeypatch.setattr(paths, "random_multisine", picky)
+    return refused.add

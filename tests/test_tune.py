@@ -140,17 +140,8 @@ def test_validation_paths_that_the_test_config_runs_on_are_refused(tmp_path):
     cfg.validate()
 
 
-def test_a_validation_path_seed_without_an_admissible_path_is_refused(tmp_path, monkeypatch):
-    import ptrack_gym.paths as paths
-
-    real = paths.random_multisine
-
-    def picky(profile, rng, *args, **kw):  # seed 5 gives no admissible path
-        if rng.bit_generator.state == np.random.default_rng(5).bit_generator.state:
-            raise paths.InvalidPathError("no admissible random path for two_link in 200 draws")
-        return real(profile, rng, *args, **kw)
-
-    monkeypatch.setattr(paths, "random_multisine", picky)
+def test_a_validation_path_seed_without_an_admissible_path_is_refused(tmp_path, no_admissible_path):
+    no_admissible_path(5)
     with pytest.raises(InvalidConfigError, match="validation path seed 5: no admissible"):
         tune(tiny(tmp_path, validation_paths=[4, 5]), progress=False)
     assert not (tmp_path / "optuna.journal").exists()

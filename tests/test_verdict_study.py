@@ -94,17 +94,8 @@ def test_bad_input_is_refused_before_any_episode(tmp_path, field, value, match):
     assert not (tmp_path / "v" / "episodes.csv").exists()
 
 
-def test_a_test_path_seed_without_an_admissible_path_is_refused(tmp_path, monkeypatch):
-    import ptrack_gym.paths as paths
-
-    real = paths.random_multisine
-
-    def picky(profile, rng, *args, **kw):  # seed 2 gives no admissible path
-        if rng.bit_generator.state == np.random.default_rng(2).bit_generator.state:
-            raise paths.InvalidPathError("no admissible random path for two_link in 200 draws")
-        return real(profile, rng, *args, **kw)
-
-    monkeypatch.setattr(paths, "random_multisine", picky)
+def test_a_test_path_seed_without_an_admissible_path_is_refused(tmp_path, no_admissible_path):
+    no_admissible_path(2)
     with pytest.raises(InvalidConfigError, match="test path seed 2 on two_link: no admissible"):
         run_verdict(tiny(tmp_path / "v"), progress=False)
     assert not (tmp_path / "v" / "episodes.csv").exists()

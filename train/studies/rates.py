@@ -24,25 +24,24 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
-from tqdm import tqdm
 
-from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
-from ptrack_gym.disturbances import PRESETS
+from agents.registry import GAIN_CHOICES, tuned_rates
 from ptrack_gym.errors import ControlRateError, InvalidConfigError
 from ptrack_gym.metrics import METRIC_NAMES
 from ptrack_gym.robots import ROBOTS
 from train.common import arguments
-from train.common.runs import open_run, worker_count, worker_pool
+from train.common.checks import check_counts, check_known, check_lists
+from train.common.runs import open_run
 from train.evaluation.episode import EpisodeSettings, Task, run_episode
-from train.evaluation.results import EpisodeWriter, read_episodes
+from train.evaluation.results import read_episodes
 from train.plots.studies import rates_figure
+from train.studies.rows import run_rows
 
 KEY_COLUMNS = ("robot", "controller", "control_hz", "path_seed", "disturbance", "seed")
 COLUMNS = (*KEY_COLUMNS, "refused", *METRIC_NAMES, "steps", "wall_s")
@@ -92,23 +91,8 @@ class RatesConfig:
 
     def validate(self) -> None:
         """Raise :class:`InvalidConfigError` naming the first bad field, before any episode."""
-        for name in ("robots", "controllers", "control_rates", "disturbances"):
-            values = getattr(self, name)
-            if not isinstance(values, list) or not values:
-                raise InvalidConfigError(f"{name} must be a non-empty list, got {values!r}")
-            if len(set(values)) != len(values):
-                raise InvalidConfigError(f"{name} has duplicates: {values}")
-        for robot in self.robots:
-            if robot not in ROBOTS:
-                raise InvalidConfigError(f"robots: unknown {robot!r}; known {sorted(ROBOTS)}")
-        for c in self.controllers:
-            if c not in CONTROLLER_NAMES:
-                raise InvalidConfigError(
-                    f"controllers: unknown {c!r}; known {list(CONTROLLER_NAMES)}"
-                )
-        for d in self.disturbances:
-            if d not in PRESETS:
-                raise InvalidConfigError(f"disturbances: unknown {d!r}; known {list(PRESETS)}")
+        check_lists(self, ("robots", "controllers", "control_rates", "disturbances"))
+        check_known(self.robots, self.controllers, self.disturbances)
         for hz in self.control_rates:
             if not (isinstance(hz, (int, float)) and math.isfinite(hz) and hz > 0):
                 raise InvalidConfigError(f"control_rates must be positive, got {hz!r}")
@@ -116,11 +100,7 @@ class RatesConfig:
                 raise InvalidConfigError(
                     f"control rate {hz:g} Hz: 1000 Hz physics must be a whole multiple of it"
                 )
-        for name in ("paths", "seeds", "workers"):
-            value = getattr(self, name)
-            low = 0 if name == "workers" else 1
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise InvalidConfigError(f"{name} must be an integer >= {low}, got {value!r}")
+        check_counts(self, ("paths", "seeds", "workers"))
         if isinstance(self.path_seed, bool) or not isinstance(self.path_seed, int):
             raise InvalidConfigError(f"path_seed must be an integer, got {self.path_seed!r}")
         for name in ("level", "episode_s", "failure_distance_rad", "accuracy_factor"):
@@ -186,23 +166,7 @@ def run_study(
         tuple(r[k] for k in KEY_COLUMNS) for r in read_episodes(episodes, COLUMNS, KEY_COLUMNS)
     }
     todo = [k for k in cfg.tasks() if _key_text(k) not in finished]
-    workers = worker_count(cfg.workers)
-    writer = EpisodeWriter(episodes, COLUMNS)
-    try:
-        bar = tqdm(total=len(todo), disable=not progress, desc="episodes")
-        if workers == 1:
-            for key in todo:
-                writer.write(run_one(cfg, key))
-                bar.update()
-        else:
-            with worker_pool(workers) as pool:
-                futures = [pool.submit(run_one, cfg, key) for key in todo]
-                for fut in as_completed(futures):
-                    writer.write(fut.result())
-                    bar.update()
-        bar.close()
-    finally:
-        writer.close()
+    run_rows(run_one, [(cfg, key) for key in todo], cfg.workers, episodes, COLUMNS, progress)
     write_report(cfg, out)
     return out
 

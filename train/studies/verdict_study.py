@@ -31,27 +31,25 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 import yaml
-from tqdm import tqdm
 
-from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, TUNED_DIR, tuned_rates
-from ptrack_gym.disturbances import PRESETS
+from agents.registry import GAIN_CHOICES, TUNED_DIR, tuned_rates
 from ptrack_gym.errors import InvalidConfigError, InvalidPathError
 from ptrack_gym.metrics import METRIC_NAMES
 from ptrack_gym.robots import ROBOTS
 from train.common import arguments
+from train.common.checks import check_counts, check_known, check_lists
 from train.common.paired_tests import TooFewPairsError
-from train.common.runs import open_run, worker_count, worker_pool
+from train.common.runs import open_run
 from train.common.statistics import hierarchical_bootstrap
 from train.evaluation.envs import check_env_kwargs, env_kwargs
 from train.evaluation.episode import EpisodeSettings, Task, run_episode
-from train.evaluation.results import EpisodeWriter, read_episodes
+from train.evaluation.results import read_episodes
 from train.evaluation.verdict import (
     BOTH_METRICS,
     condition_name,
@@ -60,6 +58,7 @@ from train.evaluation.verdict import (
     rival_table,
     words,
 )
+from train.studies.rows import run_rows
 
 KEY_COLUMNS = ("robot", "path", "controller", "disturbance", "level", "seed", "episode")
 COLUMNS = (*KEY_COLUMNS, *METRIC_NAMES, "steps", "wall_s")
@@ -114,23 +113,8 @@ class VerdictConfig:
         bad lists, an unknown robot, controller or preset, a preset a robot cannot take at a
         level (or that does not fit the episode), a test path seed that gives a robot no
         admissible path, missing tuned gains, or tuned gains chosen on a test path."""
-        for name in ("robots", "controllers", "disturbances", "test_paths"):
-            values = getattr(self, name)
-            if not isinstance(values, list) or not values:
-                raise InvalidConfigError(f"{name} must be a non-empty list, got {values!r}")
-            if len(set(values)) != len(values):
-                raise InvalidConfigError(f"{name} has duplicates: {values}")
-        for robot in self.robots:
-            if robot not in ROBOTS:
-                raise InvalidConfigError(f"robots: unknown {robot!r}; known {sorted(ROBOTS)}")
-        for c in self.controllers:
-            if c not in CONTROLLER_NAMES:
-                raise InvalidConfigError(
-                    f"controllers: unknown {c!r}; known {list(CONTROLLER_NAMES)}"
-                )
-        for d in self.disturbances:
-            if d not in PRESETS:
-                raise InvalidConfigError(f"disturbances: unknown {d!r}; known {list(PRESETS)}")
+        check_lists(self, ("robots", "controllers", "disturbances", "test_paths"))
+        check_known(self.robots, self.controllers, self.disturbances)
         if any(d != "none" for d in self.disturbances) and not self.levels:
             raise InvalidConfigError("levels must not be empty when a preset is disturbed")
         for lv in self.levels:
@@ -141,11 +125,7 @@ class VerdictConfig:
         for p in self.test_paths:
             if isinstance(p, bool) or not isinstance(p, int):
                 raise InvalidConfigError(f"test_paths must be integer seeds, got {p!r}")
-        for name in ("seeds", "resamples", "workers"):
-            value = getattr(self, name)
-            low = 0 if name == "workers" else 1
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise InvalidConfigError(f"{name} must be an integer >= {low}, got {value!r}")
+        check_counts(self, ("seeds", "resamples", "workers"))
         for name in ("episode_s", "control_hz", "failure_distance_rad"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -248,27 +228,7 @@ def run_verdict(
         tuple(r[k] for k in KEY_COLUMNS) for r in read_episodes(episodes, COLUMNS, KEY_COLUMNS)
     }
     todo = [t for t in cfg.tasks() if _key_text(*t) not in finished]
-    workers = worker_count(cfg.workers)
-    writer = EpisodeWriter(episodes, COLUMNS)
-    try:
-        bar = tqdm(total=len(todo), disable=not progress, desc="episodes")
-        if workers == 1:
-            for robot, p, task in todo:
-                writer.write(run_one(cfg, robot, p, task))
-                bar.update()
-        else:
-            with worker_pool(workers) as pool:
-                futures = [pool.submit(run_one, cfg, robot, p, task) for robot, p, task in todo]
-                try:
-                    for fut in as_completed(futures):
-                        writer.write(fut.result())
-                        bar.update()
-                finally:  # an interrupt or a failed episode: what finished is kept
-                    for fut in futures:
-                        fut.cancel()
-        bar.close()
-    finally:
-        writer.close()
+    run_rows(run_one, [(cfg, *t) for t in todo], cfg.workers, episodes, COLUMNS, progress)
     write_report(cfg, out)
     return out
 
