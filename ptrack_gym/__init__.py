@@ -23,6 +23,9 @@ EPISODE_S = 10.0
 DEFAULT_CONTROL_HZ = 1000.0
 
 ENV_IDS: list[str] = []
+#: The ``-v1`` ids: the ``-v0`` env with a preview of the reference ahead in its
+#: observation (:mod:`ptrack_gym.envs.preview`); the ``-v0`` ids are unchanged.
+PREVIEW_ENV_IDS: list[str] = []
 for _profile in ROBOTS.values():
     if _profile.env_id not in gymnasium.registry:
         gymnasium.register(
@@ -32,6 +35,15 @@ for _profile in ROBOTS.values():
             max_episode_steps=int(EPISODE_S * DEFAULT_CONTROL_HZ),
         )
     ENV_IDS.append(_profile.env_id)
+    _v1 = _profile.env_id.removesuffix("-v0") + "-v1"
+    if _v1 not in gymnasium.registry:
+        gymnasium.register(
+            id=_v1,
+            entry_point="ptrack_gym.envs.preview:make_preview_env",
+            kwargs={"robot": _profile.name},
+            max_episode_steps=int(EPISODE_S * DEFAULT_CONTROL_HZ),
+        )
+    PREVIEW_ENV_IDS.append(_v1)
 
 #: The base controllers of the residual-RL ids ``ptrack_gym/<Robot>Track-Residual-<Base>-v0``
 #: (``agents.registry.CONTROLLER_NAMES``: tests/test_zoo.py keeps the two equal). Registered
@@ -60,4 +72,4 @@ for _profile in ROBOTS.values():
                 max_episode_steps=int(EPISODE_S * DEFAULT_CONTROL_HZ),
             )
 
-__all__ = ["DEFAULT_CONTROL_HZ", "ENV_IDS", "EPISODE_S", "__version__"]
+__all__ = ["DEFAULT_CONTROL_HZ", "ENV_IDS", "EPISODE_S", "PREVIEW_ENV_IDS", "__version__"]
