@@ -153,6 +153,11 @@ class ResidualWrapper(
         if not by_name and spec.base_model is not None:
             raise InvalidConfigError("base_model is for a base given by name, not an object")
         u = env.unwrapped
+        if getattr(u.config, "path_seeds", None) is not None:
+            raise InvalidConfigError(
+                "a residual over a pool of paths (path_seeds) is not supported yet: its base "
+                "controller is built for one path; give one path (path_seed)"
+            )
         if by_name:
             check_base_model(spec.base, spec.base_model, u.robot_profile.name, spec.base_gains)
             recorded = {k: v for k, v in spec.options().items() if k != "base"}

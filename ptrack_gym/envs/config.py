@@ -83,6 +83,7 @@ class EnvConfig:
     info_energy: bool = False
     render_mode: str | None = None
     gui: bool = False
+    path_seeds: tuple[int, ...] | None = None
     profile: RobotProfile = field(init=False, repr=False)
     disturbances: list[Disturbance] = field(init=False, repr=False)
 
@@ -116,6 +117,21 @@ class EnvConfig:
             raise InvalidConfigError(
                 f"path_seed must be an integer or None, got {self.path_seed!r}"
             )
+        if self.path_seeds is not None:
+            seeds = tuple(self.path_seeds) if isinstance(self.path_seeds, (list, tuple)) else ()
+            if (
+                not seeds
+                or len(set(seeds)) != len(seeds)
+                or any(isinstance(k, bool) or not isinstance(k, numbers.Integral) for k in seeds)
+            ):
+                raise InvalidConfigError(
+                    f"path_seeds must be distinct integers, at least one, got {self.path_seeds!r}"
+                )
+            if self.path != "random" or self.path_seed is not None:
+                raise InvalidConfigError(
+                    "path_seeds is a pool of random paths: give path='random' and no path_seed"
+                )
+            set_(self, "path_seeds", tuple(int(k) for k in seeds))
         if self.start not in START_MODES:
             raise InvalidConfigError(f"start must be one of {START_MODES}, got {self.start!r}")
         set_(self, "start_noise_rad", _real(self.start_noise_rad, "start_noise_rad"))

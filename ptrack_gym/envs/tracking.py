@@ -10,6 +10,7 @@ arguments are validated by :class:`~ptrack_gym.envs.config.EnvConfig`.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
@@ -27,7 +28,7 @@ from ptrack_gym.envs.rewards import (
     KernelReward,
 )
 from ptrack_gym.envs.task import TrackingTask
-from ptrack_gym.errors import InvalidActionError, InvalidConfigError
+from ptrack_gym.errors import InvalidActionError, InvalidConfigError, InvalidPathError
 from ptrack_gym.kernels.task import clip_action
 from ptrack_gym.paths import PathProjector, ReferencePath, check_joint_limits, make_path
 from ptrack_gym.robots import PinocchioModel
@@ -108,7 +109,10 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
     ## Arguments
     ``robot`` (a name of ``ptrack_gym.robots.ROBOTS``); ``path`` ("default", "circle",
     "random", or a :class:`~ptrack_gym.paths.ReferencePath`); ``path_seed`` (for
-    "random"); ``physics_hz`` (1000), ``control_hz`` (1000); ``start``,
+    "random"); ``path_seeds`` (a pool of random paths, ``path="random"``: every reset draws
+    one of them from the reset seed's own stream — ``info["path_seed"]`` says which — so a
+    policy trains on a distribution of paths; every path is built, and checked, when the
+    env is); ``physics_hz`` (1000), ``control_hz`` (1000); ``start``,
     ``start_noise_rad``, ``start_offset_rad``; ``reward_weights``; ``unstable_penalty``;
     ``reward``, ``kernel_weights``, ``kernel_scales_rad``, ``kernel_effort_scale``;
     ``max_path_distance_rad`` (None: no off-path termination);
@@ -123,6 +127,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Version history
     v0: first release; the nominal model is Pinocchio's, ``energy_j`` is opt-in.
+    v1 (``ptrack_gym.envs.preview``): v0 with a preview of the reference ahead appended to
+    the observation.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -150,6 +156,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         info_energy: bool = False,
         render_mode: str | None = None,
         gui: bool = False,
+        path_seeds: Sequence[int] | None = None,
     ) -> None:
         self.config = config = EnvConfig(
             robot=robot, path=path, path_seed=path_seed, physics_hz=physics_hz,
@@ -160,6 +167,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             max_path_distance_rad=max_path_distance_rad, disturbance=disturbance,
             disturbance_sizing=disturbance_sizing, horizon_s=horizon_s, info_energy=info_energy,
             render_mode=render_mode, gui=gui,
+            path_seeds=None if path_seeds is None else tuple(path_seeds),
         )  # fmt: skip
         self.robot_profile = profile = config.profile
         self.render_mode = config.render_mode
@@ -170,28 +178,16 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         self.torque_limits_nm = np.array(profile.torque_limits_nm)
         self.max_speed = profile.max_joint_speed_rad_s
         self.model = PinocchioModel(profile)
-        self.path = make_path(config.path, profile, config.path_seed, self.model.mass_matrix)
-        check_joint_limits(self.path, *profile.limits())
-        self.projector = PathProjector(self.path)
-        self.task = TrackingTask(
-            self.path,
-            self.projector,
-            self.model,
-            self.max_speed,
-            config.reward_weights,
-            config.unstable_penalty,
-            config.info_energy,
-            kernel=(
-                KernelReward(
-                    config.kernel_weights,
-                    config.kernel_scales_rad,
-                    config.kernel_effort_scale,
-                    self.torque_limits_nm,
-                )
-                if config.reward == "kernel"
-                else None
-            ),
-        )
+        first = config.path_seed if config.path_seeds is None else config.path_seeds[0]
+        self._paths: dict[int | None, tuple[ReferencePath, PathProjector, TrackingTask]] = {}
+        self.path_seed = first
+        """The seed of the episode's random path (None: a path without one)."""
+        for seed in config.path_seeds or ():  # every path of the pool, before any episode
+            try:
+                self._path_parts(seed)
+            except InvalidPathError as exc:
+                raise InvalidPathError(f"path_seeds: seed {seed}: {exc}") from exc
+        self.path, self.projector, self.task = self._path_parts(first)
         self.runner = DisturbanceRunner(config.disturbances, self.n)
         self.sim = BulletSim(timestep_s=self.physics_dt, gui=config.gui)
         try:
@@ -208,9 +204,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
                 ee_link=profile.ee_link,
                 home_mass_matrix=np.array(self.model.mass_matrix(home)),
                 ee_jacobian_home=self.arm.com_jacobian(profile.ee_link, home),
-                mean_path_speed_rad_s=float(
-                    np.mean(np.linalg.norm(self.path.evaluate(self.projector.grid_s)[1], axis=1))
-                ),
+                mean_path_speed_rad_s=self._mean_path_speed(),
                 link_jacobians_home={
                     link: self.arm.com_jacobian(link, home) for link in self.arm.link_names
                 },
@@ -229,6 +223,51 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         self._q, self._qd = profile.home(), np.zeros(self.n)
         self._q_meas, self._qd_meas = self._q, self._qd
 
+    def _path_parts(self, seed: int | None) -> tuple[ReferencePath, PathProjector, TrackingTask]:
+        """The path of ``seed`` (the config's path when the env has no pool), its projector
+        and its task; built once per seed."""
+        if seed in self._paths:
+            return self._paths[seed]
+        config, profile = self.config, self.robot_profile
+        path = make_path(config.path, profile, seed, self.model.mass_matrix)
+        check_joint_limits(path, *profile.limits())
+        projector = PathProjector(path)
+        task = TrackingTask(
+            path,
+            projector,
+            self.model,
+            self.max_speed,
+            config.reward_weights,
+            config.unstable_penalty,
+            config.info_energy,
+            kernel=(
+                KernelReward(
+                    config.kernel_weights,
+                    config.kernel_scales_rad,
+                    config.kernel_effort_scale,
+                    self.torque_limits_nm,
+                )
+                if config.reward == "kernel"
+                else None
+            ),
+        )
+        self._paths[seed] = (path, projector, task)
+        return path, projector, task
+
+    def _use_path(self, seed: int) -> None:
+        """Make the pool's path ``seed`` the env's (and the disturbances' mean path speed)."""
+        if seed == self.path_seed:
+            return
+        self.path_seed = seed
+        self.path, self.projector, self.task = self._path_parts(seed)
+        self.disturbance_context = dataclasses.replace(
+            self.disturbance_context, mean_path_speed_rad_s=self._mean_path_speed()
+        )
+
+    def _mean_path_speed(self) -> float:
+        """Mean |q_r'| over the path's projector grid (rad/s)."""
+        return float(np.mean(np.linalg.norm(self.path.evaluate(self.projector.grid_s)[1], axis=1)))
+
     # -- Gymnasium API -------------------------------------------------------------
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -239,9 +278,14 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         if unknown:
             raise InvalidConfigError(f"unknown reset options {sorted(unknown)}; known: s0, q, qd")
         # Two child streams, always two draws: the start state and the disturbances'
-        # schedule never depend on each other, nor on the actions.
-        rng, dist_rng = self.np_random.spawn(2)
+        # schedule never depend on each other, nor on the actions. A path pool draws its
+        # path from a third (the first two are then those of a single path's env).
         cfg = self.config
+        if cfg.path_seeds is None:
+            rng, dist_rng = self.np_random.spawn(2)
+        else:
+            rng, dist_rng, path_rng = self.np_random.spawn(3)
+            self._use_path(cfg.path_seeds[int(path_rng.integers(len(cfg.path_seeds)))])
         s0 = float(options.get("s0", rng.uniform(0.0, self.path.period_s)))
         q_ref, qd_ref, _ = self.path.evaluate(s0)
         if cfg.start == "on_path":
@@ -260,6 +304,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             self._q, self._qd, self._q_meas, self._qd_meas, s0, 0.0, np.zeros(self.n),
             np.zeros(self.n), self.runner.last_torque_nm, self.runner.work_j,
         )  # fmt: skip
+        if cfg.path_seeds is not None:
+            info["path_seed"] = self.path_seed
         return obs, info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -354,10 +400,13 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             "episode": (self.episode, self._steps, self._s0),
             "state": (self._q.copy(), self._qd.copy(), self._q_meas, self._qd_meas),
             "runner": self.runner,
+            "path_seed": self.path_seed,
         }
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__init__(**state["config"])  # type: ignore[misc]
+        if self.config.path_seeds is not None:
+            self._use_path(state["path_seed"])
         self._np_random, self._np_random_seed = state["np_random"], state["np_random_seed"]
         self.spec = state["env_spec"]
         self.episode, self._steps, self._s0 = state["episode"]
