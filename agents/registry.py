@@ -13,6 +13,7 @@ training scripts and the benchmarks use. Every controller is built from the env'
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -193,11 +194,12 @@ def scaled_rates(
     return {**rates, **{k: rates[k] * scale for k in entry(name).rates.BANDWIDTHS}}
 
 
-def make_controller(name: str, env: Any, gains: Any = None) -> Controller:
+def make_controller(name: str, env: Any, gains: Any = None, path: Any = None) -> Controller:
     """The controller ``name`` (one of :data:`CONTROLLER_NAMES`) for ``env`` (any wrapper
     of a ``TrackingEnv``) with ``gains``: None or ``"default"`` — the robot's default gains
     at the env's control rate; ``"tuned"`` — the rates found by the tuner
-    (:func:`tuned_rates`); a mapping of rates; or the controller's gains dataclass.
+    (:func:`tuned_rates`); a mapping of rates; or the controller's gains dataclass. ``path``
+    (a ``ReferencePath``) replaces the env's own path: one of a pool's (``path_seeds``).
 
     Raises:
         InvalidConfigError: (a ``ValueError``) an unknown name or gain choice.
@@ -206,4 +208,7 @@ def make_controller(name: str, env: Any, gains: Any = None) -> Controller:
     if isinstance(gains, str):
         robot = env.unwrapped.robot_profile.name
         gains = None if check_gain_choice(gains) == "default" else tuned_rates(robot, name)
-    return build(ControlContext.from_env(env), gains)
+    ctx = ControlContext.from_env(env)
+    if path is not None:
+        ctx = dataclasses.replace(ctx, path=path)
+    return build(ctx, gains)

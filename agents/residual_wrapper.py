@@ -99,15 +99,17 @@ from ptrack_gym.errors import InvalidActionError, InvalidConfigError
 Env = gym.Env[np.ndarray, np.ndarray]
 
 
-def build_base(env: Any, base: str, base_gains: str, base_model: str | None) -> Controller:
-    """The base controller ``base`` for ``env``: a registry controller with ``base_gains``,
-    or, for :data:`~agents.residual_spec.NETWORK_BASE`, the pure policy saved in
-    ``base_model``."""
+def build_base(
+    env: Any, base: str, base_gains: str, base_model: str | None, path: Any = None
+) -> Controller:
+    """The base controller ``base`` for ``env``: a registry controller with ``base_gains``
+    (on ``path``, one of a pool's, instead of the env's own), or, for
+    :data:`~agents.residual_spec.NETWORK_BASE`, the pure policy saved in ``base_model``."""
     if base == NETWORK_BASE:
         from agents.network import load_network_controller
 
         return load_network_controller(str(base_model), env)
-    return make_controller(base, env, base_gains)
+    return make_controller(base, env, base_gains, path=path)
 
 
 class ResidualWrapper(
@@ -153,10 +155,11 @@ class ResidualWrapper(
         if not by_name and spec.base_model is not None:
             raise InvalidConfigError("base_model is for a base given by name, not an object")
         u = env.unwrapped
-        if getattr(u.config, "path_seeds", None) is not None:
+        pool = u.pool_paths() if hasattr(u, "pool_paths") else {}
+        if pool and (not by_name or spec.base == NETWORK_BASE):
             raise InvalidConfigError(
-                "a residual over a pool of paths (path_seeds) is not supported yet: its base "
-                "controller is built for one path; give one path (path_seed)"
+                "a residual over a pool of paths (path_seeds) needs a registry base given by "
+                "name: the wrapper builds one base per path"
             )
         if by_name:
             check_base_model(spec.base, spec.base_model, u.robot_profile.name, spec.base_gains)
@@ -169,7 +172,14 @@ class ResidualWrapper(
         self._registered = False  # set by use_registered_spec: the spec is the registered one
         self.tracking_env = u
         self.n = int(u.n)
-        if controller is None or isinstance(controller, str):
+        # one base per path of a pool (the one of the episode's path acts), else one
+        self._bases: dict[Any, Controller] = {
+            seed: build_base(env, spec.base, spec.base_gains, spec.base_model, path=path)
+            for seed, path in pool.items()
+        }
+        if self._bases:
+            controller = self._bases[u.path_seed]
+        elif controller is None or isinstance(controller, str):
             controller = build_base(env, spec.base, spec.base_gains, spec.base_model)
         if controller.n != self.n:
             raise InvalidConfigError(f"controller has {controller.n} joints, env has {self.n}")
@@ -188,10 +198,18 @@ class ResidualWrapper(
         inner = env.observation_space
         assert isinstance(inner, spaces.Box)
         self.features: ControllerFeatures | None = None
+        self._features_by: dict[Any, ControllerFeatures] = {
+            seed: ControllerFeatures(c, float(u.max_speed)) for seed, c in self._bases.items()
+        }
         if spec.include_controller_state:
-            self.features = ControllerFeatures(controller, float(u.max_speed))
-            low = np.concatenate([inner.low, self.features.low.astype(np.float32)])
-            high = np.concatenate([inner.high, self.features.high.astype(np.float32)])
+            self.features = self._features_by.get(u.path_seed) or ControllerFeatures(
+                controller, float(u.max_speed)
+            )
+            blocks = list(self._features_by.values()) or [self.features]
+            f_low = np.min([b.low for b in blocks], axis=0)  # the union of the paths' bounds
+            f_high = np.max([b.high for b in blocks], axis=0)
+            low = np.concatenate([inner.low, f_low.astype(np.float32)])
+            high = np.concatenate([inner.high, f_high.astype(np.float32)])
             self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self._base_ratio = np.zeros(self.n)
         self.prior_gain_per_rad = float(spec.prior_gain_per_rad)
@@ -207,6 +225,7 @@ class ResidualWrapper(
                 )
             self._prior_features = feats
             self._prior_cols = np.array([feats.names.index(name) for name in names])
+            self._prior_by = self._features_by  # a pool's: the same names on every path
         self.tank = spec.energy_tank() if spec.tank else None
         """The energy tank (None without ``tank``)."""
 
@@ -268,6 +287,12 @@ class ResidualWrapper(
         """Reset the env, then the controller at the measured state and phase s₀ + t."""
         obs, info = self.env.reset(seed=seed, options=options)
         u = self.tracking_env
+        if self._bases:  # the base (and its features) of the episode's path
+            self.controller = self._bases[u.path_seed]
+            if self.features is not None:
+                self.features = self._features_by[u.path_seed]
+            if self._prior_features is not None:
+                self._prior_features = self._prior_by[u.path_seed]
         q, qd = u.measured_joint_state()
         self.controller.reset(q, qd, u.s0 + u.t)
         self._base_ratio = np.zeros(self.n)

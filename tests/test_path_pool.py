@@ -92,10 +92,43 @@ def test_a_pool_seed_without_an_admissible_path_is_refused_at_construction(no_ad
         gym.make(TWO_LINK, path="random", path_seeds=[2, 3])  # the first one too
 
 
-def test_a_residual_over_a_pool_is_refused_clearly():
+@pytest.mark.parametrize("base", ["passivity", "computed_torque"])
+def test_a_residual_over_a_pool_runs_each_paths_own_base(base):
+    """Each episode's residual env is, bit for bit, the residual env built on the drawn path
+    alone: the wrapper switches to that path's base (and its features) at the reset."""
+    from agents.residual_wrapper import ResidualWrapper
+
+    pool = ResidualWrapper(gym.make(TWO_LINK, path="random", path_seeds=[4, 5, 6]), base,
+                           prior_gain_per_rad=5.0)  # fmt: skip
+    rng = np.random.default_rng(1)
+    drawn = set()
+    for seed in range(5):
+        obs, _ = pool.reset(seed=seed)
+        drawn.add(pool.tracking_env.path_seed)
+        alone = ResidualWrapper(
+            gym.make(TWO_LINK, path="random", path_seed=pool.tracking_env.path_seed), base,
+            prior_gain_per_rad=5.0,
+        )  # fmt: skip
+        obs_alone, _ = alone.reset(seed=seed)
+        np.testing.assert_array_equal(obs, obs_alone)
+        assert pool.observation_space.contains(obs)
+        for _ in range(150):
+            a = rng.uniform(-1, 1, size=2)
+            o1, r1, *_ = pool.step(a)
+            o2, r2, *_ = alone.step(a)
+            np.testing.assert_array_equal(o1, o2)
+            assert r1 == r2
+            assert pool.observation_space.contains(o1)
+        alone.close()
+    assert len(drawn) > 1
+    pool.close()
+
+
+def test_a_residual_over_a_pool_needs_its_base_by_name():
+    from agents import make_controller
     from agents.residual_wrapper import ResidualWrapper
 
     env = gym.make(TWO_LINK, path="random", path_seeds=[1, 2])
     with pytest.raises(InvalidConfigError, match="pool of paths"):
-        ResidualWrapper(env, "passivity")
+        ResidualWrapper(env, make_controller("pd_gravity", env))
     env.close()

@@ -254,6 +254,10 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         self._paths[seed] = (path, projector, task)
         return path, projector, task
 
+    def pool_paths(self) -> dict[int, ReferencePath]:
+        """The pool's paths by seed (``path_seeds``); empty for a single path."""
+        return {seed: self._path_parts(seed)[0] for seed in self.config.path_seeds or ()}
+
     def _use_path(self, seed: int) -> None:
         """Make the pool's path ``seed`` the env's (and the disturbances' mean path speed)."""
         if seed == self.path_seed:
