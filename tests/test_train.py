@@ -682,3 +682,44 @@ def test_the_progress_bar_follows_the_terminal_unless_told(
         assert progress_bar_on(parse_args(out)) is tty
         assert progress_bar_on(parse_args([*out, "--no-progress"])) is False
         assert progress_bar_on(parse_args([*out, "--progress"])) is True
+
+
+def test_training_and_evaluation_paths_are_declared_pools(tmp_path: Path) -> None:
+    """--train-paths: the training env draws one of those random paths per episode;
+    --eval-paths: the evaluation env holds out others; both are in the run's config."""
+    from train.rl.run import _env_factory
+
+    out = tmp_path / "paths"
+    run(parse_args(argv(out, "sac", "passivity", 100, "--train-paths", "11", "12",
+                        "--eval-paths", "21")))  # fmt: skip
+    saved = yaml.safe_load((out / "config.yml").read_text())
+    saved = saved.get("config", saved)
+    assert saved["train_paths"] == [11, 12] and saved["eval_paths"] == [21]
+    res = validate(parse_args(argv(tmp_path / "v", "sac", "passivity", 100, "--train-paths",
+                                   "11", "12", "--eval-paths", "21")))  # fmt: skip
+    train_env = _env_factory(res, "none", res.cfg.train_paths)()
+    seen = {train_env.reset(seed=s)[1]["path_seed"] for s in range(12)}
+    assert seen == {11, 12}
+    train_env.close()
+
+
+@pytest.mark.parametrize(
+    ("extra", "match"),
+    [
+        (["--train-paths", "1", "2", "--eval-paths", "2", "3"], r"eval_paths \[2\] are training"),
+        (["--eval-paths", "3"], "give train_paths"),
+        (["--train-paths", "1", "1"], "train_paths must be distinct"),
+        (
+            ["--train-paths", "1", "2", "--imitate", "pd_gravity", "--init-log-std", "-1"],
+            "imitate over a pool",
+        ),
+    ],
+)
+def test_bad_path_splits_raise_before_anything_is_written(
+    tmp_path: Path, extra: list[str], match: str
+) -> None:
+    out = tmp_path / "run"
+    residual = "none" if "--imitate" in extra else "passivity"  # imitation: pure SAC only
+    with pytest.raises(TrainConfigError, match=match):
+        run(parse_args(argv(out, "sac", residual, 100, *extra)))
+    assert not out.exists()

@@ -102,6 +102,12 @@ class TrainConfig:
     """Training disturbance: "none", a preset ("impulse") or "preset:level" ("push:0.5")."""
     eval_disturbance: str | None = None
     """Disturbance of the evaluation env, same syntax; None → the training disturbance."""
+    train_paths: list[int] | None = None
+    """Seeds of the random admissible paths the policy trains on: a pool, one path drawn per
+    episode (the env's ``path_seeds``); None: the env's default path."""
+    eval_paths: list[int] | None = None
+    """Seeds of the evaluation env's paths (a pool), disjoint from ``train_paths``: held out;
+    None: the training paths."""
     steps: int | None = None
     """Environment steps to train in this invocation (added to a resumed count, and never
     taken from the run on ``--resume``); None → the hyperparameter file's ``n_timesteps``."""
@@ -283,6 +289,25 @@ def validate(cfg: TrainConfig) -> Resolved:
     if cfg.init_log_std is not None and cfg.algo != "sac":
         raise TrainConfigError("init_log_std is for sac only")
     env_extra: dict[str, Any] = {"reward": cfg.reward}
+    for name in ("train_paths", "eval_paths"):
+        seeds = getattr(cfg, name)
+        if seeds is not None and (
+            not isinstance(seeds, list)
+            or not seeds
+            or len(set(seeds)) != len(seeds)
+            or any(isinstance(k, bool) or not isinstance(k, int) for k in seeds)
+        ):
+            raise TrainConfigError(f"{name} must be distinct integer path seeds, got {seeds!r}")
+    if cfg.train_paths is not None and cfg.imitate is not None:
+        raise TrainConfigError(
+            "imitate over a pool of paths (train_paths) is not supported yet: the expert is "
+            "built for one path"
+        )
+    if cfg.eval_paths is not None and cfg.train_paths is None:
+        raise TrainConfigError("eval_paths holds paths out of train_paths: give train_paths")
+    if cfg.train_paths and cfg.eval_paths and set(cfg.train_paths) & set(cfg.eval_paths):
+        shared = sorted(set(cfg.train_paths) & set(cfg.eval_paths))
+        raise TrainConfigError(f"eval_paths {shared} are training paths: hold them out")
     if cfg.kernel_weights is not None:
         env_extra["kernel_weights"] = tuple(cfg.kernel_weights)
     if cfg.max_path_distance is not None:

@@ -109,7 +109,7 @@ def imitate(res: Resolved, model: BaseAlgorithm, train_env: VecEnv, run_dir: Pat
     the run's learning curve (model and VecNormalize statistics; no replay buffer)."""
     cfg = res.cfg
     spec = dagger_spec(cfg)
-    env = _env_factory(res, cfg.disturbance)()
+    env = _env_factory(res, cfg.disturbance, cfg.train_paths)()
     try:
         vec_normalize = train_env if isinstance(train_env, VecNormalize) else None
         demos = dagger(model, env, spec, cfg.seed, vec_normalize)  # type: ignore[arg-type]
@@ -125,8 +125,15 @@ def imitate(res: Resolved, model: BaseAlgorithm, train_env: VecEnv, run_dir: Pat
 
 
 # -- environments ----------------------------------------------------------------------
-def _env_factory(res: Resolved, disturbance: str | None) -> Callable[[], gym.Env]:
+def _env_factory(
+    res: Resolved, disturbance: str | None, paths: list[int] | None = None
+) -> Callable[[], gym.Env]:
+    """The factory of the run's env under ``disturbance``, on the pool of random ``paths``
+    (None: the env's default path)."""
     c = res.cfg
+    extra = dict(res.env_extra)
+    if paths is not None:
+        extra.update(path="random", path_seeds=tuple(paths))
     return partial(
         build_decision_env,
         c.decision_every,
@@ -138,7 +145,7 @@ def _env_factory(res: Resolved, disturbance: str | None) -> Callable[[], gym.Env
         c.start,
         disturbance,
         c.reward_weights,
-        res.env_extra,
+        extra,
         res.residual_kwargs,
     )
 
@@ -149,7 +156,7 @@ def make_envs(res: Resolved, run_dir: Path, session: str) -> tuple[VecEnv, VecEn
     training obs statistics into it before every evaluation)."""
     c = res.cfg
     train_env = make_vec_env(
-        _env_factory(res, c.disturbance),
+        _env_factory(res, c.disturbance, c.train_paths),
         n_envs=res.n_envs,
         seed=c.seed,
         monitor_dir=str(run_dir / "monitor" / session),
@@ -157,7 +164,10 @@ def make_envs(res: Resolved, run_dir: Path, session: str) -> tuple[VecEnv, VecEn
     )
     eval_dist = c.disturbance if c.eval_disturbance is None else c.eval_disturbance
     eval_env = make_vec_env(
-        _env_factory(res, eval_dist), n_envs=1, seed=c.seed + 1000, vec_env_cls=DummyVecEnv
+        _env_factory(res, eval_dist, c.train_paths if c.eval_paths is None else c.eval_paths),
+        n_envs=1,
+        seed=c.seed + 1000,
+        vec_env_cls=DummyVecEnv,
     )
     if res.normalize_kwargs is not None:
         train_env = VecNormalize(train_env, **res.normalize_kwargs)
