@@ -84,8 +84,10 @@ class EnvConfig:
     render_mode: str | None = None
     gui: bool = False
     path_seeds: tuple[int, ...] | None = None
+    disturbance_choices: tuple[Any, ...] | None = None
     profile: RobotProfile = field(init=False, repr=False)
     disturbances: list[Disturbance] = field(init=False, repr=False)
+    choices: list[list[Disturbance]] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -175,8 +177,26 @@ class EnvConfig:
             "disturbances",
             build_disturbances(self.disturbance, self.profile, self.disturbance_sizing),
         )
-        for d in self.disturbances:  # onsets that fit the episode, before any simulator
-            d.check_horizon(self.horizon_s)
+        choices: list[list[Disturbance]] = []
+        if self.disturbance_choices is not None:
+            options = self.disturbance_choices
+            if not isinstance(options, (list, tuple)) or not options:
+                raise InvalidConfigError(
+                    f"disturbance_choices must be a list of one or more disturbance specs, "
+                    f"got {options!r}"
+                )
+            if self.disturbance is not None:
+                raise InvalidConfigError(
+                    "give disturbance (always on) or disturbance_choices (one per episode), "
+                    "not both"
+                )
+            set_(self, "disturbance_choices", tuple(options))
+            choices = [
+                build_disturbances(c, self.profile, self.disturbance_sizing) for c in options
+            ]
+        set_(self, "choices", choices)
+        for d in [*self.disturbances, *(d for c in choices for d in c)]:
+            d.check_horizon(self.horizon_s)  # onsets that fit the episode, before any simulator
 
     @property
     def substeps(self) -> int:
@@ -188,5 +208,5 @@ class EnvConfig:
         return {
             name: getattr(self, name)
             for name in self.__dataclass_fields__
-            if name not in ("profile", "disturbances")
+            if name not in ("profile", "disturbances", "choices")
         }

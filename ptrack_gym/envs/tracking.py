@@ -119,7 +119,11 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
     ``disturbance`` (see :mod:`ptrack_gym.disturbances`: a preset name,
     ``(preset, level)``, specs or a list); ``disturbance_sizing`` ("home": joint-torque
     disturbances sized by M(q_home); "onset": by M(q) where they start to act, see
-    :mod:`ptrack_gym.disturbances.torques`); ``horizon_s`` (the nominal episode length the
+    :mod:`ptrack_gym.disturbances.torques`); ``disturbance_choices`` (instead of
+    ``disturbance``: a list of such specs, one drawn per reset from the reset seed's own
+    stream, ``info["disturbance_choice"]`` its index — a distribution of disturbance
+    families to train on; an episode under choice k is the episode of the env built with
+    ``disturbance`` = choice k); ``horizon_s`` (the nominal episode length the
     disturbances draw onsets and energy budgets for, 10 s; a disturbance whose latest
     onset + duration + 0.5 s of recovery does not fit in it is refused); ``info_energy`` (False);
     ``render_mode`` ("rgb_array" works headless); ``gui``. Unknown arguments raise
@@ -157,6 +161,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         render_mode: str | None = None,
         gui: bool = False,
         path_seeds: Sequence[int] | None = None,
+        disturbance_choices: Sequence[DisturbanceSpec] | None = None,
     ) -> None:
         self.config = config = EnvConfig(
             robot=robot, path=path, path_seed=path_seed, physics_hz=physics_hz,
@@ -168,6 +173,9 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             disturbance_sizing=disturbance_sizing, horizon_s=horizon_s, info_energy=info_energy,
             render_mode=render_mode, gui=gui,
             path_seeds=None if path_seeds is None else tuple(path_seeds),
+            disturbance_choices=(
+                None if disturbance_choices is None else tuple(disturbance_choices)
+            ),
         )  # fmt: skip
         self.robot_profile = profile = config.profile
         self.render_mode = config.render_mode
@@ -188,7 +196,12 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             except InvalidPathError as exc:
                 raise InvalidPathError(f"path_seeds: seed {seed}: {exc}") from exc
         self.path, self.projector, self.task = self._path_parts(first)
-        self.runner = DisturbanceRunner(config.disturbances, self.n)
+        # one runner per choice (each classifies its own hooks), else the one
+        self._runners = [
+            DisturbanceRunner(items, self.n) for items in config.choices or [config.disturbances]
+        ]
+        self._choice = 0
+        self.runner = self._runners[0]
         self.sim = BulletSim(timestep_s=self.physics_dt, gui=config.gui)
         try:
             self.arm = self.sim.load_arm(
@@ -211,7 +224,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
                 mass_matrix=self.model.mass_matrix,
                 com_jacobian=self.arm.com_jacobian,
             )
-            self.runner.validate(self.disturbance_context)
+            for runner in self._runners:
+                runner.validate(self.disturbance_context)
         except BaseException:
             self.close()  # no PyBullet client outlives a failed construction
             raise
@@ -290,6 +304,11 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         else:
             rng, dist_rng, path_rng = self.np_random.spawn(3)
             self._use_path(cfg.path_seeds[int(path_rng.integers(len(cfg.path_seeds)))])
+        if cfg.disturbance_choices is not None:  # the next child stream: the episode's choice
+            choice = int(self.np_random.spawn(1)[0].integers(len(self._runners)))
+            if choice != self._choice:
+                self.arm.set_mass_changes({})  # the last choice's plant edits undone
+                self._choice, self.runner = choice, self._runners[choice]
         s0 = float(options.get("s0", rng.uniform(0.0, self.path.period_s)))
         q_ref, qd_ref, _ = self.path.evaluate(s0)
         if cfg.start == "on_path":
@@ -310,6 +329,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         )  # fmt: skip
         if cfg.path_seeds is not None:
             info["path_seed"] = self.path_seed
+        if cfg.disturbance_choices is not None:
+            info["disturbance_choice"] = self._choice
         return obs, info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -405,6 +426,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             "state": (self._q.copy(), self._qd.copy(), self._q_meas, self._qd_meas),
             "runner": self.runner,
             "path_seed": self.path_seed,
+            "choice": self._choice,
         }
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -417,7 +439,8 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
         q, qd, self._q_meas, self._qd_meas = state["state"]
         self.arm.reset_state(q, qd)
         self._q, self._qd = self.arm.state()
-        self.runner = state["runner"]
+        self._choice = state.get("choice", 0)
+        self.runner = self._runners[self._choice] = state["runner"]
         self.runner.set_context(self.disturbance_context)
         if self.runner.was_reset:
             self.runner.apply_plant(self.arm, self.t, force=True)  # a new, nominal body
