@@ -703,9 +703,31 @@ def test_training_and_evaluation_paths_are_declared_pools(tmp_path: Path) -> Non
     train_env.close()
 
 
+def test_training_and_evaluation_families_are_declared_choices(tmp_path: Path) -> None:
+    """--train-families: one of those disturbances per training episode; --eval-families:
+    held-out ones for the evaluation env; both in the run's config."""
+    from train.rl.run import _env_factory
+
+    extra = ["--train-families", "impulse:0.5", "periodic", "--eval-families", "push",
+             "--episode-s", "5.0"]  # fmt: skip
+    res = validate(parse_args(argv(tmp_path / "v", "sac", "none", 100, *extra)))
+    assert res.cfg.train_families == ["impulse:0.5", "periodic"]
+    env = _env_factory(res, "none", None, res.cfg.train_families)()
+    seen = {env.reset(seed=s)[1]["disturbance_choice"] for s in range(12)}
+    assert seen == {0, 1}
+    assert env.unwrapped.config.disturbance_choices == (("impulse", 0.5), "periodic")
+    env.close()
+
+
 @pytest.mark.parametrize(
     ("extra", "match"),
     [
+        (
+            ["--train-families", "impulse", "noise", "--eval-families", "noise:2"],
+            r"eval_families \['noise'\] are training families",
+        ),
+        (["--train-families", "impulse", "--disturbance", "noise"], "leave disturbance 'none'"),
+        (["--train-families", "hurricane"], "unknown disturbance preset"),
         (["--train-paths", "1", "2", "--eval-paths", "2", "3"], r"eval_paths \[2\] are training"),
         (["--eval-paths", "3"], "give train_paths"),
         (["--train-paths", "1", "1"], "train_paths must be distinct"),

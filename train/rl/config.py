@@ -41,6 +41,7 @@ from train.evaluation.envs import (
     WRAPPER_DEFAULTS,
     check_env_kwargs,
     env_kwargs,
+    parse_disturbance,
     residual_wrapper_kwargs,
 )
 from train.evaluation.policies import ALGOS, BACKENDS
@@ -102,6 +103,13 @@ class TrainConfig:
     """Training disturbance: "none", a preset ("impulse") or "preset:level" ("push:0.5")."""
     eval_disturbance: str | None = None
     """Disturbance of the evaluation env, same syntax; None → the training disturbance."""
+    train_families: list[str] | None = None
+    """Disturbances the policy trains under, one drawn per episode (the env's
+    ``disturbance_choices``; each "preset" or "preset:level"); needs ``disturbance``
+    "none"."""
+    eval_families: list[str] | None = None
+    """The evaluation env's disturbances, one drawn per episode, none of whose presets is a
+    training family: held out; None: ``eval_disturbance`` (or the training ones)."""
     train_paths: list[int] | None = None
     """Seeds of the random admissible paths the policy trains on: a pool, one path drawn per
     episode (the env's ``path_seeds``); None: the env's default path."""
@@ -298,6 +306,21 @@ def validate(cfg: TrainConfig) -> Resolved:
             or any(isinstance(k, bool) or not isinstance(k, int) for k in seeds)
         ):
             raise TrainConfigError(f"{name} must be distinct integer path seeds, got {seeds!r}")
+    for name in ("train_families", "eval_families"):
+        texts = getattr(cfg, name)
+        if texts is not None and (
+            not isinstance(texts, list) or not texts or not all(isinstance(t, str) for t in texts)
+        ):
+            raise TrainConfigError(f"{name} must be a list of disturbances, got {texts!r}")
+    if cfg.train_families is not None and cfg.disturbance != "none":
+        raise TrainConfigError("train_families replaces disturbance: leave disturbance 'none'")
+    if cfg.eval_families is not None and cfg.eval_disturbance is not None:
+        raise TrainConfigError("give eval_families or eval_disturbance, not both")
+    if cfg.train_families and cfg.eval_families:
+        presets = {t.partition(":")[0] for t in cfg.train_families}
+        shared = sorted(p for p in {t.partition(":")[0] for t in cfg.eval_families} if p in presets)
+        if shared:
+            raise TrainConfigError(f"eval_families {shared} are training families: hold them out")
     if cfg.train_paths is not None and cfg.imitate is not None:
         raise TrainConfigError(
             "imitate over a pool of paths (train_paths) is not supported yet: the expert is "
@@ -328,6 +351,14 @@ def validate(cfg: TrainConfig) -> Resolved:
                     control_hz, max_episode_steps, cfg.start, text, cfg.reward_weights, env_extra
                 ),
             )
+        for families in (cfg.train_families, cfg.eval_families):
+            if families is not None:
+                choices = {"disturbance_choices": [parse_disturbance(t) for t in families]}
+                check_env_kwargs(
+                    cfg.env_id,
+                    env_kwargs(control_hz, max_episode_steps, cfg.start, None,
+                               cfg.reward_weights, {**env_extra, **choices}),
+                )  # fmt: skip
         if residual_kwargs:
             own = ("base_gains", "prior_gain_per_rad", "base_model")
             check_safeguards(**{k: v for k, v in residual_kwargs.items() if k not in own})

@@ -58,6 +58,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
 from train.evaluation.envs import (
     build_decision_env,
+    parse_disturbance,
 )
 from train.evaluation.policies import algo_class
 from train.rl.actor import (
@@ -109,7 +110,7 @@ def imitate(res: Resolved, model: BaseAlgorithm, train_env: VecEnv, run_dir: Pat
     the run's learning curve (model and VecNormalize statistics; no replay buffer)."""
     cfg = res.cfg
     spec = dagger_spec(cfg)
-    env = _env_factory(res, cfg.disturbance, cfg.train_paths)()
+    env = _env_factory(res, cfg.disturbance, cfg.train_paths, cfg.train_families)()
     try:
         vec_normalize = train_env if isinstance(train_env, VecNormalize) else None
         demos = dagger(model, env, spec, cfg.seed, vec_normalize)  # type: ignore[arg-type]
@@ -126,14 +127,20 @@ def imitate(res: Resolved, model: BaseAlgorithm, train_env: VecEnv, run_dir: Pat
 
 # -- environments ----------------------------------------------------------------------
 def _env_factory(
-    res: Resolved, disturbance: str | None, paths: list[int] | None = None
+    res: Resolved,
+    disturbance: str | None,
+    paths: list[int] | None = None,
+    families: list[str] | None = None,
 ) -> Callable[[], gym.Env]:
-    """The factory of the run's env under ``disturbance``, on the pool of random ``paths``
-    (None: the env's default path)."""
+    """The factory of the run's env under ``disturbance`` — or one of ``families`` per
+    episode — on the pool of random ``paths`` (None: the env's default path)."""
     c = res.cfg
     extra = dict(res.env_extra)
     if paths is not None:
         extra.update(path="random", path_seeds=tuple(paths))
+    if families is not None:
+        extra["disturbance_choices"] = tuple(parse_disturbance(t) for t in families)
+        disturbance = None
     return partial(
         build_decision_env,
         c.decision_every,
@@ -156,7 +163,7 @@ def make_envs(res: Resolved, run_dir: Path, session: str) -> tuple[VecEnv, VecEn
     training obs statistics into it before every evaluation)."""
     c = res.cfg
     train_env = make_vec_env(
-        _env_factory(res, c.disturbance, c.train_paths),
+        _env_factory(res, c.disturbance, c.train_paths, c.train_families),
         n_envs=res.n_envs,
         seed=c.seed,
         monitor_dir=str(run_dir / "monitor" / session),
@@ -164,7 +171,14 @@ def make_envs(res: Resolved, run_dir: Path, session: str) -> tuple[VecEnv, VecEn
     )
     eval_dist = c.disturbance if c.eval_disturbance is None else c.eval_disturbance
     eval_env = make_vec_env(
-        _env_factory(res, eval_dist, c.train_paths if c.eval_paths is None else c.eval_paths),
+        _env_factory(
+            res,
+            eval_dist,
+            c.train_paths if c.eval_paths is None else c.eval_paths,
+            c.eval_families
+            if c.eval_families is not None
+            else (c.train_families if c.eval_disturbance is None else None),
+        ),
         n_envs=1,
         seed=c.seed + 1000,
         vec_env_cls=DummyVecEnv,
