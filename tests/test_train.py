@@ -719,9 +719,34 @@ def test_training_and_evaluation_families_are_declared_choices(tmp_path: Path) -
     env.close()
 
 
+def test_randomized_masses_scale_every_link_per_training_episode(tmp_path: Path) -> None:
+    """--randomize-mass 0.1: each link's mass within ±10 % of nominal, redrawn per episode,
+    on top of each training family; the evaluation env stays nominal."""
+    from train.rl.run import _env_factory
+
+    extra = ["--train-families", "impulse", "periodic", "--randomize-mass", "0.1",
+             "--episode-s", "5.0"]  # fmt: skip
+    res = validate(parse_args(argv(tmp_path / "v", "sac", "none", 100, *extra)))
+    env = _env_factory(res, "none", None, res.cfg.train_families, res.cfg.randomize_mass)()
+    u = env.unwrapped
+    draws = []
+    for s in range(6):
+        env.reset(seed=s)
+        assert [type(d).__name__ for d in u.runner.items][-1] == "Mismatch"
+        draws.append(u.disturbance_schedule()[-1])
+    scales = u.runner.items[-1]._scales
+    assert set(scales) == {"link1", "link2"} and all(0.9 <= v <= 1.1 for v in scales.values())
+    assert len({str(d) for d in draws}) == 6  # redrawn every episode
+    env.close()
+    nominal = _env_factory(res, "none", None, ["push"])()  # an evaluation env's arguments
+    assert all(type(d).__name__ != "Mismatch" for d in nominal.unwrapped.runner.items)
+    nominal.close()
+
+
 @pytest.mark.parametrize(
     ("extra", "match"),
     [
+        (["--randomize-mass", "1.0"], r"randomize_mass must be in \[0, 1\)"),
         (
             ["--train-families", "impulse", "noise", "--eval-families", "noise:2"],
             r"eval_families \['noise'\] are training families",

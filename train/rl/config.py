@@ -110,6 +110,11 @@ class TrainConfig:
     eval_families: list[str] | None = None
     """The evaluation env's disturbances, one drawn per episode, none of whose presets is a
     training family: held out; None: ``eval_disturbance`` (or the training ones)."""
+    randomize_mass: float = 0.0
+    """f ∈ [0, 1): every training episode scales each link's mass and inertia by its own
+    factor uniform in [1 − f, 1 + f] (a ``mismatch`` without damping or friction; the
+    model stays nominal), on top of the training disturbance; 0: the nominal plant. The
+    evaluation env stays nominal."""
     train_paths: list[int] | None = None
     """Seeds of the random admissible paths the policy trains on: a pool, one path drawn per
     episode (the env's ``path_seeds``); None: the env's default path."""
@@ -312,6 +317,12 @@ def validate(cfg: TrainConfig) -> Resolved:
             not isinstance(texts, list) or not texts or not all(isinstance(t, str) for t in texts)
         ):
             raise TrainConfigError(f"{name} must be a list of disturbances, got {texts!r}")
+    if not (
+        isinstance(cfg.randomize_mass, (int, float))
+        and not isinstance(cfg.randomize_mass, bool)
+        and 0.0 <= cfg.randomize_mass < 1.0
+    ):
+        raise TrainConfigError(f"randomize_mass must be in [0, 1), got {cfg.randomize_mass!r}")
     if cfg.train_families is not None and cfg.disturbance != "none":
         raise TrainConfigError("train_families replaces disturbance: leave disturbance 'none'")
     if cfg.eval_families is not None and cfg.eval_disturbance is not None:

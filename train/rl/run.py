@@ -56,6 +56,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure as configure_logger
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
+from ptrack_gym.robots import profile_for_env_id
 from train.evaluation.envs import (
     build_decision_env,
     parse_disturbance,
@@ -110,7 +111,9 @@ def imitate(res: Resolved, model: BaseAlgorithm, train_env: VecEnv, run_dir: Pat
     the run's learning curve (model and VecNormalize statistics; no replay buffer)."""
     cfg = res.cfg
     spec = dagger_spec(cfg)
-    env = _env_factory(res, cfg.disturbance, cfg.train_paths, cfg.train_families)()
+    env = _env_factory(
+        res, cfg.disturbance, cfg.train_paths, cfg.train_families, cfg.randomize_mass
+    )()
     try:
         vec_normalize = train_env if isinstance(train_env, VecNormalize) else None
         demos = dagger(model, env, spec, cfg.seed, vec_normalize)  # type: ignore[arg-type]
@@ -131,16 +134,29 @@ def _env_factory(
     disturbance: str | None,
     paths: list[int] | None = None,
     families: list[str] | None = None,
+    randomize_mass: float = 0.0,
 ) -> Callable[[], gym.Env]:
     """The factory of the run's env under ``disturbance`` — or one of ``families`` per
-    episode — on the pool of random ``paths`` (None: the env's default path)."""
+    episode — on the pool of random ``paths`` (None: the env's default path), the plant's
+    link masses and inertias scaled per episode by up to ± ``randomize_mass``."""
     c = res.cfg
     extra = dict(res.env_extra)
     if paths is not None:
         extra.update(path="random", path_seeds=tuple(paths))
+    masses: list[Any] = []
+    if randomize_mass > 0:
+        links = profile_for_env_id(c.env_id).disturbance_scales.mismatch_links
+        masses = [{"type": "mismatch", "mass_scale": (1.0 - randomize_mass,
+                   1.0 + randomize_mass), "links": tuple(links)}]  # fmt: skip
     if families is not None:
-        extra["disturbance_choices"] = tuple(parse_disturbance(t) for t in families)
+        parsed = [parse_disturbance(t) for t in families]
+        extra["disturbance_choices"] = tuple(
+            [d for d in (p,) if d is not None] + masses if masses else p for p in parsed
+        )
         disturbance = None
+    elif masses:
+        extra["disturbance"] = [d for d in (parse_disturbance(disturbance),) if d is not None]
+        extra["disturbance"] += masses
     return partial(
         build_decision_env,
         c.decision_every,
@@ -163,7 +179,7 @@ def make_envs(res: Resolved, run_dir: Path, session: str) -> tuple[VecEnv, VecEn
     training obs statistics into it before every evaluation)."""
     c = res.cfg
     train_env = make_vec_env(
-        _env_factory(res, c.disturbance, c.train_paths, c.train_families),
+        _env_factory(res, c.disturbance, c.train_paths, c.train_families, c.randomize_mass),
         n_envs=res.n_envs,
         seed=c.seed,
         monitor_dir=str(run_dir / "monitor" / session),
