@@ -87,6 +87,12 @@ def test_study_writes_curves_figure_and_final_table(study: Path, tmp_path: Path)
     assert "passivity alone" in table and "computed_torque alone" in table
     assert "## Samples to reach the reference" in table and "| pure | pd_gravity" in table
     assert "IQM" in table and (out / "aggregate.png").exists()
+    # the protocol: what each group trained on and what the study judges it on
+    assert "## Protocol" in table
+    protocol = table.split("## Final checkpoints")[0]
+    rows = [ln for ln in protocol.splitlines() if ln.startswith("| pure |")]
+    assert len(rows) == 1 and "the default path" in rows[0], protocol
+    assert "This study evaluates them on: path default, presets noise, none, periodic" in table
     # the curve value at the last checkpoint is the final table's per-seed figure
     last = curves[(curves["group"] == "residual-passivity") & (curves["steps"] == 200)]
     value = last[last["disturbance"] == "periodic"]["path_dist_rms"].item()

@@ -59,6 +59,7 @@ from train.rl.study_tables import (
     aggregate_frame,
     curve_frame,
     final_table,
+    protocol_table,
     samples_to_reach,
     training_curves,
 )
@@ -145,8 +146,15 @@ def run_study(
     train_dist = str(runs[0].config["disturbance"]).partition(":")[0]
     resamples = sweep_cfg.bootstrap_resamples
     agg = aggregate(aggregate_frame(final, runs), "path_dist_rms", out, resamples, seed=0)
+    test = (
+        f"path {sweep_cfg.path}"
+        + (f" (seed {sweep_cfg.path_seed})" if sweep_cfg.path_seed is not None else "")
+        + f", presets {', '.join(dict.fromkeys(final['disturbance'].astype(str)))}"
+    )
     text = "\n\n".join(
         [
+            "## Protocol: what each group trained on, and what it is judged on",
+            protocol_table(runs, test),
             f"## Final checkpoints ({final_steps(runs)} steps), presets at level 1",
             final_table(final, runs, resamples),
             "## Samples to reach the reference",

@@ -58,6 +58,34 @@ def training_curves(runs: Sequence[Run], window: int = 10) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["group", "seed", "steps", "reward_per_step"])
 
 
+def protocol_table(runs: Sequence[Run], test: str) -> str:
+    """Markdown: per group, what its runs trained on — paths, disturbance families, the
+    plant's randomisation — and ``test``, what the study evaluates them on (the
+    generalization protocol, issue 39; a run predating a field trained without it)."""
+    lines = [
+        "| group | seeds | trained on paths | trained under | randomized masses | "
+        "evaluated during training on |",
+        "| --- | ---: | --- | --- | ---: | --- |",
+    ]
+    for group in sorted({r.group for r in runs}):
+        members = [r for r in runs if r.group == group]
+        c = members[0].config
+        paths = c.get("train_paths")
+        families = c.get("train_families")
+        eval_on = ", ".join(
+            x for x in (
+                f"paths {c['eval_paths']}" if c.get("eval_paths") else "",
+                f"families {c['eval_families']}" if c.get("eval_families") else "",
+            ) if x
+        ) or "the training distribution"  # fmt: skip
+        lines.append(
+            f"| {group} | {len(members)} | {paths if paths else 'the default path'} | "
+            f"{families if families else c.get('disturbance', 'none')} | "
+            f"±{float(c.get('randomize_mass', 0.0)):g} | {eval_on} |"
+        )
+    return "\n".join(lines) + f"\n\nThis study evaluates them on: {test}."
+
+
 def final_table(df: pd.DataFrame, runs: Sequence[Run], resamples: int) -> str:
     """Markdown table of the final checkpoints against the controllers alone, per
     disturbance (rows of ``df``'s disturbances, in order). Every run is taken at the same
