@@ -1,11 +1,11 @@
 """A distribution of disturbances (``disturbance_choices``): every reset draws one choice
 from the reset seed's own stream; an episode under choice k is, bit for bit, the episode of
 the env built with that disturbance alone — a plant edited by an earlier choice included —
-every choice is drawn, the draw survives pickling, and bad choices are refused."""
+every choice is drawn (the draw survives pickling: ``tests/test_path_pool.py``), and bad
+choices are refused."""
 
 from __future__ import annotations
 
-import pickle
 from collections import Counter
 
 import gymnasium as gym
@@ -57,21 +57,6 @@ def test_choices_and_a_path_pool_draw_independently():
              for s in range(40)}  # fmt: skip
     assert pairs == {(1, 0), (1, 1), (2, 0), (2, 1)}
     env.close()
-
-
-def test_an_env_with_choices_pickles_mid_episode_and_continues_identically():
-    env = gym.make(TWO_LINK, disturbance_choices=CHOICES, control_hz=250.0).unwrapped
-    env.reset(seed=3)
-    for _ in range(100):
-        env.step(np.full(2, 0.1, dtype=np.float32))
-    copy = pickle.loads(pickle.dumps(env))
-    for _ in range(200):
-        o1, r1, *_ = env.step(np.full(2, 0.1, dtype=np.float32))
-        o2, r2, *_ = copy.step(np.full(2, 0.1, dtype=np.float32))
-        np.testing.assert_array_equal(o1, o2)
-        assert r1 == r2
-    env.close()
-    copy.close()
 
 
 @pytest.mark.parametrize(

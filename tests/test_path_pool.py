@@ -51,14 +51,23 @@ def test_the_draw_is_the_reset_seeds_and_covers_the_pool():
     b.close()
 
 
-def test_a_pooled_env_pickles_mid_episode_and_continues_identically():
-    env = gym.make(TWO_LINK, path="random", path_seeds=[1, 2, 3]).unwrapped
-    env.reset(seed=5)
-    for _ in range(50):
+@pytest.mark.parametrize(
+    ("kwargs", "seed", "before", "after"),
+    [
+        ({"path": "random", "path_seeds": [1, 2, 3]}, 5, 50, 50),
+        # a drawn disturbance too (tests/test_disturbance_choices.py), its plant edits included
+        ({"disturbance_choices": ["impulse", ("mismatch", 2.0), "noise", ("payload", 1.0)],
+          "control_hz": 250.0}, 3, 100, 200),
+    ],
+)  # fmt: skip
+def test_a_pooled_env_pickles_mid_episode_and_continues_identically(kwargs, seed, before, after):
+    env = gym.make(TWO_LINK, **kwargs).unwrapped
+    env.reset(seed=seed)
+    for _ in range(before):
         env.step(np.full(2, 0.1, dtype=np.float32))
     copy = pickle.loads(pickle.dumps(env))
-    assert copy.path_seed == env.path_seed
-    for _ in range(50):
+    assert copy.path_seed == env.path_seed and copy.runner is not env.runner
+    for _ in range(after):
         o1, r1, *_ = env.step(np.full(2, 0.1, dtype=np.float32))
         o2, r2, *_ = copy.step(np.full(2, 0.1, dtype=np.float32))
         np.testing.assert_array_equal(o1, o2)
