@@ -224,6 +224,7 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
                 mass_matrix=self.model.mass_matrix,
                 com_jacobian=self.arm.com_jacobian,
             )
+            self._contexts = {self.path_seed: self.disturbance_context}
             for runner in self._runners:
                 runner.validate(self.disturbance_context)
         except BaseException:
@@ -278,9 +279,11 @@ class TrackingEnv(gym.Env[np.ndarray, np.ndarray]):
             return
         self.path_seed = seed
         self.path, self.projector, self.task = self._path_parts(seed)
-        self.disturbance_context = dataclasses.replace(
-            self.disturbance_context, mean_path_speed_rad_s=self._mean_path_speed()
-        )
+        if seed not in self._contexts:  # one context per path, as its parts
+            self._contexts[seed] = dataclasses.replace(
+                self.disturbance_context, mean_path_speed_rad_s=self._mean_path_speed()
+            )
+        self.disturbance_context = self._contexts[seed]
 
     def _mean_path_speed(self) -> float:
         """Mean |q_r'| over the path's projector grid (rad/s)."""

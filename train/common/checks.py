@@ -43,3 +43,22 @@ def check_counts(cfg: Any, names: Sequence[str]) -> None:
         low = 0 if name == "workers" else 1
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise InvalidConfigError(f"{name} must be an integer >= {low}, got {value!r}")
+
+
+def check_path_seeds(env_id: str, seeds: Sequence[int], label: str) -> None:
+    """Every seed of ``seeds`` gives ``env_id``'s robot an admissible random path — the one
+    its env would build (:func:`ptrack_gym.paths.make_path` with the nominal model's metric),
+    without a simulator; else :class:`InvalidConfigError` "``label`` <seed>: why"."""
+    from ptrack_gym.errors import InvalidPathError
+    from ptrack_gym.paths import make_path
+    from ptrack_gym.robots import PinocchioModel, profile_for_env_id
+
+    if not seeds:
+        return
+    profile = profile_for_env_id(env_id)
+    metric = PinocchioModel(profile).mass_matrix
+    for seed in seeds:
+        try:
+            make_path("random", profile, seed, metric)
+        except InvalidPathError as exc:
+            raise InvalidConfigError(f"{label.format(seed=seed)}: {exc}") from exc

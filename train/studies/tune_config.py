@@ -14,6 +14,7 @@ from ptrack_gym.disturbances import PRESETS
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
 from train.common import arguments
+from train.common.checks import check_path_seeds
 from train.evaluation.envs import check_env_kwargs, env_kwargs
 from train.evaluation.episode import EpisodeSettings, Task
 from train.studies.tune_boxes import Box, check_boxes, resolve_box
@@ -111,7 +112,7 @@ class TuneConfig:
             raise InvalidConfigError(
                 f"validation_paths must be distinct integer path seeds, got {self.validation_paths}"
             )
-        check_paths(self.env_id, self.validation_paths)
+        check_path_seeds(self.env_id, self.validation_paths, "validation path seed {seed}")
         if self.effort_metric not in EFFORT_METRICS:
             raise InvalidConfigError(
                 f"effort_metric must be one of {list(EFFORT_METRICS)}, got {self.effort_metric!r}"
@@ -189,20 +190,6 @@ def test_episodes(config: Path) -> tuple[set[int], set[int | None]]:
         raise InvalidConfigError(f"test_config {config} does not exist")
     cfg = load_config(config, [], validate=False)  # its seeds, whatever else it needs
     return {t.reset_seed for t in cfg.tasks()}, {cfg.path_seed if cfg.path == "random" else None}
-
-
-def check_paths(env_id: str, path_seeds: Sequence[int]) -> None:
-    """Raise :class:`InvalidConfigError` before any episode if a seed gives no admissible
-    random path of ``env_id``'s robot."""
-    import gymnasium as gym
-
-    from ptrack_gym.errors import InvalidPathError
-
-    for seed in path_seeds:
-        try:
-            gym.make(env_id, path="random", path_seed=seed).close()
-        except InvalidPathError as exc:
-            raise InvalidConfigError(f"validation path seed {seed}: {exc}") from exc
 
 
 def load_config(path: Path | None, overrides: Sequence[str]) -> TuneConfig:

@@ -39,11 +39,11 @@ import pandas as pd
 import yaml
 
 from agents.registry import GAIN_CHOICES, TUNED_DIR, tuned_rates
-from ptrack_gym.errors import InvalidConfigError, InvalidPathError
+from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.metrics import METRIC_NAMES
 from ptrack_gym.robots import ROBOTS
 from train.common import arguments
-from train.common.checks import check_counts, check_known, check_lists
+from train.common.checks import check_counts, check_known, check_lists, check_path_seeds
 from train.common.paired_tests import TooFewPairsError
 from train.common.runs import open_run
 from train.common.statistics import hierarchical_bootstrap
@@ -143,7 +143,9 @@ class VerdictConfig:
                     raise InvalidConfigError(
                         f"{robot} cannot take {condition_name(d, level)}: {exc}"
                     ) from exc
-            check_test_paths(robot, self.test_paths)
+            check_path_seeds(
+                ROBOTS[robot].env_id, self.test_paths, f"test path seed {{seed}} on {robot}"
+            )
             if self.gains == "tuned":
                 for c in self.controllers:
                     tuned_rates(robot, c)  # raises naming the missing file
@@ -185,17 +187,6 @@ class VerdictConfig:
 def load_config(path: Path | None, overrides: Sequence[str]) -> VerdictConfig:
     """The config of a YAML file, with ``field=value`` overrides; unknown keys raise."""
     return arguments.load_config(VerdictConfig, path, overrides, validate=False)
-
-
-def check_test_paths(robot: str, path_seeds: Sequence[int]) -> None:
-    """Raise :class:`InvalidConfigError` if a seed gives ``robot`` no admissible random path."""
-    import gymnasium as gym
-
-    for seed in path_seeds:
-        try:
-            gym.make(ROBOTS[robot].env_id, path="random", path_seed=seed).close()
-        except InvalidPathError as exc:
-            raise InvalidConfigError(f"test path seed {seed} on {robot}: {exc}") from exc
 
 
 def tuned_validation_paths(robot: str, controller: str) -> set[int]:
