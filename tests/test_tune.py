@@ -71,6 +71,13 @@ def test_tiny_study_runs_resumes_and_its_saved_gains_load(tmp_path, monkeypatch)
         tune(tiny(out, trials=3, episode_s=2.0), resume=True, progress=False)
 
     best = tune(tiny(out, trials=3), resume=True, save_dir=saved, progress=False)
+    with pytest.raises(InvalidConfigError, match="--force"):  # the saved gains are kept
+        tune(tiny(out, trials=3), resume=True, save_dir=saved, progress=False)
+    # --resume --force: the studies continue (nothing reruns), the saved gains are replaced
+    (saved / "two_link-computed_torque.yml").write_text("rates: {}\n")
+    again = tune(tiny(out, trials=3), resume=True, save_dir=saved, progress=False, force=True)
+    assert again["computed_torque"]["rates"] == best["computed_torque"]["rates"]
+    assert "study:" in (saved / "two_link-computed_torque.yml").read_text()
     trials = _trials(out)
     assert len(trials) == 3  # two kept, one new
     assert [t.params for t in trials[:2]] == before
@@ -127,6 +134,20 @@ def test_validation_paths_run_every_seed_and_disturbance_on_each_path(tmp_path):
     assert all(s.path == "random" for _, s in episodes)
     # no validation paths: the default path, as before
     assert {s.path for _, s in tiny(tmp_path).episodes("computed_torque", "default")} == {"default"}
+
+
+def test_a_paired_validation_design_runs_the_ith_disturbance_on_the_ith_path(tmp_path):
+    cfg = tiny(tmp_path, validation_paths=[9001, 9002], validation_seeds=[1000, 1001],
+               validation_design="paired")  # fmt: skip
+    episodes = cfg.episodes("computed_torque", "default")
+    assert len(episodes) == 2 * 2  # paths x seeds
+    seen = {(s.path_seed, t.disturbance, t.seed) for t, s in episodes}
+    (d0, d1) = cfg.disturbances
+    assert seen == {(9001, d0, 1000), (9001, d0, 1001), (9002, d1, 1000), (9002, d1, 1001)}
+    with pytest.raises(InvalidConfigError, match="as many validation_paths as disturbances"):
+        tiny(tmp_path, validation_paths=[9001], validation_design="paired").validate()
+    with pytest.raises(InvalidConfigError, match="validation_design must be one of"):
+        tiny(tmp_path, validation_design="latin").validate()
 
 
 def test_validation_paths_that_the_test_config_runs_on_are_refused(tmp_path):

@@ -15,7 +15,8 @@ controller, so that a ranking of tuned controllers is a ranking of laws, not of 
 * objective — J = exp(mean_e log max(d_e, 10⁻¹²)) (rad), the geometric mean over the
   validation episodes e ∈ V = ``validation_paths`` × ``validation_seeds`` × ``disturbances``
   (each preset at level 1, started on the path; random admissible paths, or the default
-  path when ``validation_paths`` is empty) of the path-distance RMS d_e: scale-free, so the
+  path when ``validation_paths`` is empty; ``validation_design: paired`` runs the i-th
+  disturbance on the i-th path only, |V| = paths × seeds) of the path-distance RMS d_e: scale-free, so the
   undisturbed case (~1e-4 rad) counts as much as a payload (~1e-1 rad) in relative terms, where an
   arithmetic mean would tune for the payload alone; a failed episode (unstable, or the path
   distance past ``failure_distance_rad``) counts with its padded RMS;
@@ -111,7 +112,9 @@ def tune(
 
     ``save_dir`` (``--save``: :data:`agents.registry.TUNED_DIR`) receives each winner as
     ``<robot>-<controller>.yml``; a file already there (the shipped gains) is replaced only
-    with ``force``, which also starts the studies over in an ``out`` that holds files.
+    with ``force``. Without ``resume``, ``force`` also starts the studies over in an ``out``
+    that holds files; with it, the studies continue and ``force`` only lets the winners
+    replace the shipped gains (the last run of a fight: ``--resume --save --force``).
     ``objective`` replaces the validation episodes (tests).
 
     Raises:
@@ -140,7 +143,8 @@ def tune(
     _refuse_one_seed_study(Path(cfg.out), resume)
     settings_dict = _settings(cfg)
     run = open_run(
-        cfg.out, "optuna.journal", settings_dict, resume=resume, force=force, free=FREE_FIELDS,
+        cfg.out, "optuna.journal", settings_dict, resume=resume, force=force and not resume,
+        free=FREE_FIELDS,
         saved_required=False,
     )  # fmt: skip
     out = run.out

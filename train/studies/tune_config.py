@@ -22,6 +22,8 @@ from train.studies.tune_boxes import Box, check_boxes, resolve_box
 DEFAULT_TEST_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "evaluate" / "main.yml"
 #: The episode metrics the effort constraint may use.
 EFFORT_METRICS = ("tau_fb_rms_frac", "tau_dyn_rms_frac", "tau_rms_frac")
+#: How the validation paths meet the disturbances (:attr:`TuneConfig.validation_design`).
+VALIDATION_DESIGNS = ("crossed", "paired")
 
 
 @dataclass
@@ -46,6 +48,11 @@ class TuneConfig:
     """Seeds of the random admissible validation paths (``path: random``); every validation
     seed and disturbance runs on each. Empty: the env's default path. They must not be
     paths of ``test_config`` (tuned gains are judged on other paths than they were tuned on)."""
+    validation_design: str = "crossed"
+    """How paths meet disturbances: "crossed", every disturbance on every validation path
+    (paths × disturbances × seeds episodes); "paired", the i-th path runs only the i-th
+    disturbance (as many paths as disturbances; paths × seeds episodes): every path and every
+    disturbance is seen at 1/|disturbances| of the cost."""
     disturbances: list[str] = field(
         default_factory=lambda: ["none", "impulse", "periodic", "payload", "noise"]
     )
@@ -113,6 +120,19 @@ class TuneConfig:
                 f"validation_paths must be distinct integer path seeds, got {self.validation_paths}"
             )
         check_path_seeds(self.env_id, self.validation_paths, "validation path seed {seed}")
+        if self.validation_design not in VALIDATION_DESIGNS:
+            raise InvalidConfigError(
+                f"validation_design must be one of {list(VALIDATION_DESIGNS)}, got "
+                f"{self.validation_design!r}"
+            )
+        if self.validation_design == "paired" and len(self.validation_paths) != len(
+            self.disturbances
+        ):
+            raise InvalidConfigError(
+                f"validation_design 'paired' runs the i-th disturbance on the i-th validation "
+                f"path: it needs as many validation_paths as disturbances, got "
+                f"{len(self.validation_paths)} paths and {len(self.disturbances)} disturbances"
+            )
         if self.effort_metric not in EFFORT_METRICS:
             raise InvalidConfigError(
                 f"effort_metric must be one of {list(EFFORT_METRICS)}, got {self.effort_metric!r}"
@@ -148,11 +168,12 @@ class TuneConfig:
         """The validation episodes' reset seeds (one episode per seed)."""
         return [Task("x", "none", 0.0, s, 0).reset_seed for s in self.validation_seeds]
 
-    def tasks(self, controller: str) -> list[Task]:
-        """The validation episodes of one path: each disturbance at level 1 × each seed."""
+    def tasks(self, controller: str, disturbances: Sequence[str] | None = None) -> list[Task]:
+        """The validation episodes of one path: each disturbance (of ``disturbances``, all
+        by default) at level 1 × each seed."""
         return [
             Task(controller, d, 0.0 if d == "none" else 1.0, s, 0)
-            for d in self.disturbances
+            for d in (self.disturbances if disturbances is None else disturbances)
             for s in self.validation_seeds
         ]
 
@@ -160,16 +181,18 @@ class TuneConfig:
         self, controller: str, gains: str | tuple[tuple[str, Any], ...]
     ) -> list[tuple[Task, EpisodeSettings]]:
         """Every validation episode of ``controller`` at ``gains`` (a sorted tuple of rates,
-        or "default") with its settings: :meth:`tasks` on each validation path."""
+        or "default") with its settings: :meth:`tasks` on each validation path (crossed), or
+        the i-th disturbance's on the i-th path (paired)."""
         paths: list[int | None] = list(self.validation_paths) or [None]
         out = []
-        for p in paths:
+        for i, p in enumerate(paths):
+            only = [self.disturbances[i]] if self.validation_design == "paired" else None
             settings = EpisodeSettings(
                 self.env_id, self.episode_s, self.control_hz, "on_path",
                 self.failure_distance_rad, 0.01, gains=gains,
                 path="default" if p is None else "random", path_seed=p,
             )  # fmt: skip
-            out += [(t, settings) for t in self.tasks(controller)]
+            out += [(t, settings) for t in self.tasks(controller, only)]
         return out
 
     def box(self, controller: str) -> Box:
