@@ -17,9 +17,10 @@ controller, so that a ranking of tuned controllers is a ranking of laws, not of 
   (each preset at level 1, started on the path; random admissible paths, or the default
   path when ``validation_paths`` is empty; ``validation_design: paired`` runs the i-th
   disturbance on the i-th path only, |V| = paths × seeds) of the path-distance RMS d_e:
-  scale-free, so the undisturbed case (~1e-4 rad) counts as much as a payload (~1e-1 rad) in relative terms, where an
-  arithmetic mean would tune for the payload alone; a failed episode (unstable, or the path
-  distance past ``failure_distance_rad``) counts with its padded RMS;
+  scale-free, so the undisturbed case (~1e-4 rad) counts as much as a payload (~1e-1 rad)
+  in relative terms, where an arithmetic mean would tune for the payload alone; a failed
+  episode (unstable, or the path distance past ``failure_distance_rad``) counts with its
+  padded RMS;
 * constraint — the mean effort E = (1/|V|) Σ_e m_e of ``effort_metric`` m must stay ≤ the
   budget B: ``effort_budget`` if given, else ``effort_factor`` × E of ``effort_reference``
   (computed torque) with its default gains on the same episodes — one budget per robot.
