@@ -17,7 +17,7 @@ STAMP := $(VENV)/.installed
 
 PTRACK := $(VENV)/bin/ptrack
 
-.PHONY: setup check-python run test lint docs bench experiment verdict clean
+.PHONY: setup check-python run test test-slow lint docs bench experiment verdict clean
 
 setup: $(STAMP)
 
@@ -61,9 +61,15 @@ lint: setup
 	$(PY) -m ruff check .
 	$(PY) -m ruff format --check .
 
-# In parallel over the cores (pytest-xdist); one BLAS/torch thread per worker.
+# In parallel over the cores (pytest-xdist); one BLAS/torch thread per worker. The tests
+# marked slow (make test-slow) are left out: each is a longer variant of a claim the
+# default run checks, or an optional backend's (Ray).
+TEST_ENV := OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
 test: lint
-	OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n auto
+	$(TEST_ENV) $(PY) -m pytest -q -n auto -m "not slow"
+
+test-slow: setup
+	$(TEST_ENV) $(PY) -m pytest -q -n auto -m slow
 
 # The documentation site (MkDocs material; API pages from the docstrings) into site/.
 docs: setup

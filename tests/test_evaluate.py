@@ -281,6 +281,7 @@ def test_summary_and_report_do_not_depend_on_the_order_episodes_finished(
     assert outputs["sorted"] == outputs["shuffled"]
 
 
+@pytest.mark.slow  # Ray's start takes most of a minute: make test-slow
 def test_ray_backend_gives_the_same_rows(full_run, tmp_path) -> None:
     pytest.importorskip("ray")
     out = run_sweep(
