@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import gymnasium
 
-from ptrack_gym.robots import ROBOTS
+from ptrack_gym.robots import ROBOTS, preview_env_id
 
 __version__ = "0.4.0"
 
@@ -35,7 +35,7 @@ for _profile in ROBOTS.values():
             max_episode_steps=int(EPISODE_S * DEFAULT_CONTROL_HZ),
         )
     ENV_IDS.append(_profile.env_id)
-    _v1 = _profile.env_id.removesuffix("-v0") + "-v1"
+    _v1 = preview_env_id(_profile.env_id)
     if _v1 not in gymnasium.registry:
         gymnasium.register(
             id=_v1,

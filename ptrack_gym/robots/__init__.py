@@ -31,12 +31,19 @@ def robot_profile(name: str) -> RobotProfile:
         raise InvalidConfigError(f"unknown robot {name!r}; known: {sorted(ROBOTS)}") from None
 
 
+def preview_env_id(env_id: str) -> str:
+    """The ``-v1`` id (the observation with a preview of the reference ahead,
+    :mod:`ptrack_gym.envs.preview`) of a robot's ``-v0`` id."""
+    return env_id.removesuffix("-v0") + "-v1"
+
+
 def profile_for_env_id(env_id: str) -> RobotProfile:
-    """The profile of the robot whose env id is ``env_id``."""
+    """The profile of the robot whose env id is ``env_id`` (its ``-v0`` id or the ``-v1``
+    one with the preview: the same robot, task and dynamics)."""
     for profile in ROBOTS.values():
-        if profile.env_id == env_id:
+        if env_id in (profile.env_id, preview_env_id(profile.env_id)):
             return profile
-    known = sorted(p.env_id for p in ROBOTS.values())
+    known = sorted(i for p in ROBOTS.values() for i in (p.env_id, preview_env_id(p.env_id)))
     raise InvalidConfigError(f"unknown env id {env_id!r}; known: {known}")
 
 
@@ -50,6 +57,7 @@ __all__ = [
     "RobotModel",
     "RobotProfile",
     "home_inertia_kgm2",
+    "preview_env_id",
     "profile_for_env_id",
     "robot_profile",
 ]

@@ -23,8 +23,16 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 from ptrack_gym.errors import InvalidConfigError
 
-#: The algorithms ``--algo`` accepts.
+#: The algorithms ``--algo`` accepts in Stable-Baselines3 itself.
 ALGOS: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "td3": TD3, "ppo": PPO}
+#: The recurrent ones, from sb3-contrib (the optional ``recurrent`` extra), by rl-zoo3's
+#: names: ``ppo_lstm`` is RecurrentPPO with an LSTM policy (``MlpLstmPolicy``), whose hidden
+#: state lets a policy infer what one observation cannot (a payload from a push).
+RECURRENT_ALGOS = {"ppo_lstm": "RecurrentPPO"}
+#: Every algorithm name ``--algo`` accepts.
+ALGO_NAMES = (*ALGOS, *RECURRENT_ALGOS)
+#: The on-policy algorithms (rollouts of ``n_steps`` per env, no replay buffer).
+ON_POLICY = ("ppo", "ppo_lstm")
 
 #: The learner implementations ``--backend`` accepts: Stable-Baselines3 itself (torch) and
 #: sbx, the SB3 team's JAX port of the same algorithms behind the same interface (the
@@ -44,19 +52,31 @@ def sbx_available() -> bool:
 
 
 def algo_class(algo: str, backend: str = "sb3") -> type[BaseAlgorithm]:
-    """The model class of ``algo`` ("sac", "td3", "ppo") in ``backend`` ("sb3", "sbx"): an
-    SB3 ``BaseAlgorithm`` either way (sbx's classes subclass SB3's, so callbacks,
-    ``VecNormalize``, checkpoints and ``predict`` are SB3's).
+    """The model class of ``algo`` ("sac", "td3", "ppo"; "ppo_lstm": sb3-contrib's
+    RecurrentPPO, SB3 backend only) in ``backend`` ("sb3", "sbx"): an SB3 ``BaseAlgorithm``
+    either way (sbx's classes subclass SB3's, so callbacks, ``VecNormalize``, checkpoints
+    and ``predict`` are SB3's).
 
     Raises:
         InvalidConfigError: an unknown algorithm or backend, or sbx without its extra.
     """
-    if algo not in ALGOS:
-        raise InvalidConfigError(f"unknown algo {algo!r}; known: {sorted(ALGOS)}")
+    if algo not in ALGO_NAMES:
+        raise InvalidConfigError(f"unknown algo {algo!r}; known: {sorted(ALGO_NAMES)}")
+    if backend not in BACKENDS:
+        raise InvalidConfigError(f"unknown backend {backend!r}; known: {list(BACKENDS)}")
+    if algo in RECURRENT_ALGOS:
+        if backend != "sb3":
+            raise InvalidConfigError(f"algo {algo!r} exists in the sb3 backend only")
+        try:
+            import sb3_contrib
+        except ImportError as exc:
+            raise InvalidConfigError(
+                f"algo {algo!r} needs the optional 'recurrent' extra (sb3-contrib): "
+                "pip install 'ptrack_gym[recurrent]'"
+            ) from exc
+        return getattr(sb3_contrib, RECURRENT_ALGOS[algo])
     if backend == "sb3":
         return ALGOS[algo]
-    if backend != "sbx":
-        raise InvalidConfigError(f"unknown backend {backend!r}; known: {list(BACKENDS)}")
     if not sbx_available():
         raise InvalidConfigError(
             "backend 'sbx' needs the optional 'sbx' extra: pip install 'ptrack_gym[sbx]' "
@@ -125,19 +145,21 @@ def deploy_safeguards(run_dir: Path) -> dict[str, Any]:
 
 def check_sb3_run(name: str, env_id: str) -> Path:
     """The run folder of ``sb3:…``, checked: its config and model exist, it was trained
-    on ``env_id``, its network base (if any) is a pure policy there and its ``deploy.yml``
-    (if any) is valid; raises :class:`InvalidConfigError`."""
+    on ``env_id``'s robot (either observation version: the run is evaluated in its own,
+    the same task and dynamics), its network base (if any) is a pure policy there and its
+    ``deploy.yml`` (if any) is valid; raises :class:`InvalidConfigError`."""
     run_dir, model_zip, _ = sb3_files(name)
     for path in (run_dir / "config.yml", model_zip):
         if not path.exists():
             raise InvalidConfigError(f"{name}: {path} does not exist")
+    from ptrack_gym.robots import profile_for_env_id
+
     config = run_config(run_dir)["config"]
     trained_on = config["env_id"]
-    if trained_on != env_id:
-        raise InvalidConfigError(f"{name} was trained on {trained_on}, not {env_id}")
+    if profile_for_env_id(trained_on).name != profile_for_env_id(env_id).name:
+        raise InvalidConfigError(f"{name} was trained on {trained_on}, not on {env_id}'s robot")
     if config.get("base_model") is not None:  # a network base: it must be there, and pure
         from agents.residual import check_base_model
-        from ptrack_gym.robots import profile_for_env_id
 
         check_base_model(config["residual"], config["base_model"], profile_for_env_id(env_id).name)
     deploy_safeguards(run_dir)  # a bad deploy.yml is named before anything runs
@@ -146,11 +168,17 @@ def check_sb3_run(name: str, env_id: str) -> Path:
 
 class SB3Policy:
     """A trained model acting deterministically on raw observations: SB3's ``predict``,
-    with the run's VecNormalize observation statistics applied first when it has them."""
+    with the run's VecNormalize observation statistics applied first when it has them.
+
+    A recurrent model (RecurrentPPO) keeps its hidden state here between calls when the
+    caller passes none (the episode loop does not): ``episode_start`` true starts it over,
+    as SB3's ``evaluate_policy`` does. A caller that passes ``state`` keeps its own."""
 
     def __init__(self, model: BaseAlgorithm, obs_stats: Any | None) -> None:
         self.model = model
         self.obs_stats = obs_stats
+        self.recurrent = type(model).__name__ in RECURRENT_ALGOS.values()
+        self._state: Any = None
 
     def predict(
         self,
@@ -160,7 +188,12 @@ class SB3Policy:
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
         x = self.obs_stats.normalize_obs(observation) if self.obs_stats is not None else observation
-        return self.model.predict(x, state, episode_start, deterministic)
+        if not self.recurrent or state is not None:
+            return self.model.predict(x, state, episode_start, deterministic)
+        if episode_start is None:  # no episode boundary given: a new episode once, then on
+            episode_start = np.array([self._state is None])
+        action, self._state = self.model.predict(x, self._state, episode_start, deterministic)
+        return action, self._state
 
 
 def load_sb3_policy(name: str, env_id: str) -> tuple[SB3Policy, dict[str, Any]]:

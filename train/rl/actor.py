@@ -12,9 +12,10 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from stable_baselines3 import PPO, SAC, TD3
+from stable_baselines3 import SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from torch import nn
 
 from train.rl.hyperparameters import (
@@ -33,13 +34,13 @@ def _last_linear(module: nn.Module) -> nn.Linear:
 def zero_init_actor(model: BaseAlgorithm) -> None:
     """Zero the weights and bias of the actor's output layer, so the deterministic action
     is exactly 0 (SAC: ``actor.mu``; TD3: the last linear layer of ``actor.mu``, copied to
-    the target actor; PPO: ``policy.action_net``)."""
+    the target actor; PPO and RecurrentPPO: ``policy.action_net``)."""
     policy: Any = model.policy
     if isinstance(model, SAC):
         layers = [_last_linear(policy.actor.mu)]
     elif isinstance(model, TD3):
         layers = [_last_linear(policy.actor.mu)]
-    elif isinstance(model, PPO):
+    elif isinstance(model, OnPolicyAlgorithm):  # PPO, RecurrentPPO
         layers = [_last_linear(policy.action_net)]
     else:
         raise TrainConfigError(f"zero init is not implemented for {type(model).__name__}")

@@ -43,7 +43,7 @@ from train.evaluation.envs import (
     env_kwargs,
     residual_wrapper_kwargs,
 )
-from train.evaluation.policies import ALGOS, BACKENDS
+from train.evaluation.policies import ALGO_NAMES, BACKENDS, ON_POLICY, RECURRENT_ALGOS
 from train.rl.checkpoints import (
     latest_checkpoint,
 )
@@ -76,7 +76,8 @@ class TrainConfig:
     out: str
     """Run folder: config, checkpoints, final model, logs."""
     algo: str = "sac"
-    """Algorithm: "sac", "td3" or "ppo"."""
+    """Algorithm: "sac", "td3", "ppo" or "ppo_lstm" (sb3-contrib's RecurrentPPO: the
+    ``recurrent`` extra)."""
     backend: str = "sb3"
     """Its implementation: "sb3" (Stable-Baselines3, torch) or "sbx" (the SB3 team's JAX port,
     the optional ``sbx`` extra; the same interface, callbacks and files). The residual
@@ -258,8 +259,10 @@ def validate(cfg: TrainConfig) -> Resolved:
         TrainConfigError: the first problem found, with the valid choices (every number
             out of its domain, and every ``--resume`` mismatch, at once).
     """
-    if cfg.algo not in ALGOS:
-        raise TrainConfigError(f"unknown algo {cfg.algo!r}; known: {sorted(ALGOS)}")
+    if cfg.algo not in ALGO_NAMES:
+        raise TrainConfigError(f"unknown algo {cfg.algo!r}; known: {sorted(ALGO_NAMES)}")
+    if cfg.algo in RECURRENT_ALGOS and cfg.backend != "sb3":
+        raise TrainConfigError(f"algo {cfg.algo!r} exists in the sb3 backend only")
     if cfg.backend not in BACKENDS:
         raise TrainConfigError(f"unknown backend {cfg.backend!r}; known: {list(BACKENDS)}")
     check_numbers(dataclasses.asdict(cfg))
@@ -291,7 +294,7 @@ def validate(cfg: TrainConfig) -> Resolved:
         if residual_kwargs != WRAPPER_DEFAULTS:
             raise TrainConfigError(f"{', '.join(WRAPPER_DEFAULTS)} need a residual base")
         residual_kwargs = {}
-    if cfg.algo == "ppo":
+    if cfg.algo in ON_POLICY:
         for name in ("critic_warmup_steps", "freeze_actor"):
             if getattr(cfg, name):
                 raise TrainConfigError(f"{name} needs an off-policy algorithm (sac, td3)")

@@ -15,6 +15,7 @@ from typing import Any
 
 import torch
 
+from train.evaluation.policies import ON_POLICY
 from train.rl.hyperparameters import TrainConfigError, hyperparameter_default
 
 #: The lowest value of each integer field (an optional one may also be None).
@@ -91,14 +92,14 @@ def check_agreement(
         TrainConfigError: naming the values that disagree.
     """
     algo, backend = fields["algo"], fields["backend"]
-    if algo == "ppo":
+    if algo in ON_POLICY:
         n_steps, batch = (
             int(algo_kwargs.get(key, hyperparameter_default(algo, backend, key)))
             for key in ("n_steps", "batch_size")
         )
         if algo_kwargs.get("normalize_advantage", True) and (n_steps * n_envs < 2 or batch < 2):
             raise TrainConfigError(
-                f"ppo normalises advantages: n_steps · n_envs ({n_steps} · {n_envs}) and "
+                f"{algo} normalises advantages: n_steps · n_envs ({n_steps} · {n_envs}) and "
                 f"batch_size ({batch}) must be >= 2"
             )
         return

@@ -24,7 +24,7 @@ from stable_baselines3.common.utils import LinearSchedule
 from torch import nn
 
 from ptrack_gym.errors import InvalidConfigError
-from train.evaluation.policies import algo_class
+from train.evaluation.policies import ON_POLICY, RECURRENT_ALGOS, algo_class
 
 #: The packaged hyperparameter files, ``<algo>.yml``.
 HYPERPARAMS_DIR = Path(__file__).resolve().parents[1] / "hyperparams"
@@ -177,7 +177,7 @@ def resolve_hyperparams(
         )
     kwargs = {k: v for k, v in raw.items() if k not in SPECIAL_KEYS}
     special = {k: raw[k] for k in SPECIAL_KEYS if k in raw}
-    kwargs.setdefault("policy", "MlpPolicy")
+    kwargs.setdefault("policy", "MlpLstmPolicy" if algo in RECURRENT_ALGOS else "MlpPolicy")
     if isinstance(kwargs.get("policy_kwargs"), str):
         kwargs["policy_kwargs"] = parse_python_literal(kwargs["policy_kwargs"])
     if kwargs.get("policy_kwargs") is not None and not isinstance(kwargs["policy_kwargs"], dict):
@@ -193,7 +193,7 @@ def resolve_hyperparams(
     if isinstance(kwargs.get("train_freq"), list):
         kwargs["train_freq"] = tuple(kwargs["train_freq"])
     if "noise_type" in special:
-        if algo == "ppo":
+        if algo in ON_POLICY:
             raise TrainConfigError("noise_type / noise_std apply to sac and td3 only")
         if special["noise_type"] not in NOISE_TYPES:
             raise TrainConfigError(

@@ -14,6 +14,7 @@ import yaml
 from agents.residual import NETWORK_BASE
 from ptrack_gym.errors import InvalidConfigError
 from train.evaluation.config import EvalConfig
+from train.evaluation.policies import ON_POLICY
 
 #: Checkpoint file names of ``train.rl.run`` (SB3's CheckpointCallback).
 _CKPT = re.compile(r"rl_model_(\d+)_steps\.zip$")
@@ -82,7 +83,7 @@ def actor_untrained_through(saved: dict) -> float:
         return float("inf")
     if c.get("imitate"):
         return -1
-    if c.get("algo") == "ppo":
+    if c.get("algo") in ON_POLICY:
         return int(hp.get("n_steps", 2048)) * int((saved.get("derived") or {}).get("n_envs", 1))
     return int(hp.get("learning_starts", 0)) + int(c.get("critic_warmup_steps") or 0)
 
