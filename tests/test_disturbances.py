@@ -314,6 +314,22 @@ def test_delay_preset_reports_the_newest_sample_at_least_2ms_x_level_old(
     assert (steps - 1) / control_hz < 2e-3 * level
 
 
+def test_the_friction_preset_only_takes_energy_and_more_at_a_higher_level() -> None:
+    """Damping and Coulomb friction oppose q̇ joint by joint: their work on the arm is
+    negative at every sub-step, so over an episode; twice the level takes more."""
+    from train.evaluation.episode import EpisodeSettings, Task, run_episode
+
+    settings = EpisodeSettings("ptrack_gym/TwoLinkTrack-v0", 2.0, 250.0, "on_path", 0.5, 0.01)
+    work = [
+        run_episode(Task("pd_gravity", "friction", level, 0, 0), settings)[0]
+        for level in (1.0, 2.0)
+    ]
+    assert work[0]["disturbance_work_j"] < 0.0
+    assert work[1]["disturbance_work_j"] < work[0]["disturbance_work_j"]
+    built = build_disturbances(("friction", 1.0), robot_profile("iiwa"))
+    assert [d.name for d in built] == ["mismatch"] and built[0].links == ()
+
+
 def test_level_zero_is_no_disturbance_and_presets_build() -> None:
     for name in PRESETS:
         assert build_disturbances((name, 0.0), robot_profile("iiwa")) == []

@@ -39,6 +39,7 @@ PRESETS: tuple[str, ...] = (
     "mismatch",
     "mixed",
     "delay",
+    "friction",
 )
 #: Presets that accept an energy budget, ``(preset, {"energy_j": E})``.
 ENERGY_PRESETS: tuple[str, ...] = ("impulse", "push", "periodic")
@@ -56,7 +57,8 @@ def preset_specs(name: str, level: float, profile: RobotProfile) -> list[dict[st
         (1 mrad, 10 mrad/s), actuation noise (1 rad/s² per joint inertia) and a 5 Hz
         band-limited torque (1 rad/s²); a payload of ``payload_kg`` is picked up between 1 and
         4 s; the mismatch preset scales link masses by ±20%, with damping 0.5/s and friction
-        0.5 rad/s²; the delay preset reports the state sampled 2 ms × level earlier (at least:
+        0.5 rad/s²; the friction preset is that damping and friction alone at twice the size
+        (1/s and 1 rad/s² per unit of joint inertia, nominal masses); the delay preset reports the state sampled 2 ms × level earlier (at least:
     ⌈delay / Δt⌉ control steps). The onsets (1-4 s) are the same at every level, so are the shortest
         episodes these accept (:func:`~ptrack_gym.disturbances.base.min_horizon_s`: the latest
         onset + duration + 0.5 s of recovery): impulse and mixed 4.55 s, push 4.6 s, payload
@@ -88,6 +90,12 @@ def _specs(name: str, level: float, sc: DisturbanceScales) -> list[dict[str, Any
                 "links": sc.mismatch_links,
             }
         ],
+        # the joints' damping and friction alone, nominal masses: the dynamics a policy
+        # trained under randomised masses has never met (issue 39's held-out dynamics)
+        "friction": [
+            {"type": "mismatch", "mass_scale": 1.0, "damping_per_s": 1.0 * level,
+             "friction_rad_s2": 1.0 * level, "links": ()}
+        ],  # fmt: skip
     }
     if name == "mixed":
         return [
