@@ -274,6 +274,8 @@ RUN_OPTIONS: tuple[str, ...] = (
     "base_gains",
     "prior_gain_per_rad",
     "base_model",
+    "tank",
+    "tank_beta",
 )
 #: :data:`RUN_OPTIONS` with the spec's defaults: a compatibility view for ``train``.
 WRAPPER_DEFAULTS: Mapping[str, Any] = MappingProxyType(

@@ -230,3 +230,35 @@ def test_the_gate_scales_to_the_budget_exactly_on_the_predicted_work():
     assert 1e-3 * v @ (lam * tau_res) == pytest.approx(0.01, rel=1e-9)
     # a dissipative correction passes whole
     assert tank.gate(model, q, qd, tau_base, -tau_res, 1e-3) == 1.0
+
+
+def test_a_tank_residual_trains_and_is_evaluated_with_its_tank(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from agents.residual_wrapper import ResidualWrapper as Wrapper
+    from train.evaluation.episode import EpisodeSettings, _sb3_env_and_policy
+    from train.rl.config import TrainConfigError, parse_args, validate
+    from train.rl.run import run
+
+    def argv(out, *extra):
+        return ["--algo", "sac", "--residual", "passivity", "--steps", "100", "--out", str(out),
+                "--episode-s", "0.2", "--eval-freq", "1000", "--checkpoint-freq", "1000",
+                "--disturbance", "periodic:0.5", "--hp", "learning_starts=50", "--hp",
+                "batch_size=16", "--hp", "policy_kwargs=dict(net_arch=[16])", *extra]  # fmt: skip
+
+    out = tmp_path / "run"
+    run(parse_args(argv(out, "--tank", "--tank-beta", "0.8")))
+    settings = EpisodeSettings(TWO_LINK, 0.2, 250.0, "on_path", 0.5, 0.01)
+    env, _ = _sb3_env_and_policy(f"sb3:{out}", settings, "periodic", 0.5)
+    wrapper = env
+    while not isinstance(wrapper, Wrapper):
+        wrapper = wrapper.env
+    assert wrapper.tank is not None and wrapper.tank.beta == 0.8
+    _, info = env.reset(seed=0)
+    assert info["tank_level_j"] == 0.5
+    for bad, match in (
+        (["--residual", "computed_torque"], "its base must be one of"),
+        (["--residual", "none"], "need a residual base"),
+        (["--tank-beta", "1.5"], "beta"),
+    ):
+        with pytest.raises(TrainConfigError, match=match):
+            validate(parse_args(argv(tmp_path / "bad", "--tank", *bad)))

@@ -147,6 +147,8 @@ def test_wrapper_defaults_are_the_specs_defaults_of_the_run_options() -> None:
         "base_gains": "default",
         "prior_gain_per_rad": 0.0,
         "base_model": None,
+        "tank": False,
+        "tank_beta": 0.5,
     }
     assert tuple(WRAPPER_DEFAULTS) == RUN_OPTIONS
     assert set(RUN_OPTIONS) <= set(SPEC_FIELDS)

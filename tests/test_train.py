@@ -417,6 +417,8 @@ def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
         "base_gains": "default",
         "prior_gain_per_rad": 0.0,
         "base_model": None,
+        "tank": False,
+        "tank_beta": 0.5,
     }
     from train.rl.run import _env_factory
 
@@ -472,7 +474,7 @@ def test_acceleration_authority_reaches_the_training_env(tmp_path: Path) -> None
     assert res.residual_kwargs == {
         "action_penalty": 0.0, "gate_rad": None, "gate_deadband_rad": 0.0,
         "scale_accel_rad_s2": 10.0, "base_gains": "default", "prior_gain_per_rad": 0.0,
-        "base_model": None,
+        "base_model": None, "tank": False, "tank_beta": 0.5,
     }  # fmt: skip
     env = _env_factory(res, "none")()
     try:

@@ -50,19 +50,20 @@ DisturbanceSpec = str | tuple[str, Any] | Mapping[str, Any] | Disturbance
 def preset_specs(name: str, level: float, profile: RobotProfile) -> list[dict[str, Any]]:
     """The specs of preset ``name`` at ``level`` (0 none, 1 nominal) for a robot.
 
-        Torque magnitudes are inertia-scaled (``accel_rad_s2``) or energy-based, so a level
-        means a comparable push on every joint of every robot: at level 1, an impulse gives the
-        arm at rest at home the robot's ``impulse_j`` of kinetic energy in 50 ms; a periodic
-        torque accelerates each joint by up to 2 rad/s²; the noise preset adds sensor noise
-        (1 mrad, 10 mrad/s), actuation noise (1 rad/s² per joint inertia) and a 5 Hz
-        band-limited torque (1 rad/s²); a payload of ``payload_kg`` is picked up between 1 and
-        4 s; the mismatch preset scales link masses by ±20%, with damping 0.5/s and friction
-        0.5 rad/s²; the friction preset is that damping and friction alone at twice the size
-        (1/s and 1 rad/s² per unit of joint inertia, nominal masses); the delay preset reports the state sampled 2 ms × level earlier (at least:
-    ⌈delay / Δt⌉ control steps). The onsets (1-4 s) are the same at every level, so are the shortest
-        episodes these accept (:func:`~ptrack_gym.disturbances.base.min_horizon_s`: the latest
-        onset + duration + 0.5 s of recovery): impulse and mixed 4.55 s, push 4.6 s, payload
-        4.5 s; the others any length.
+    Torque magnitudes are inertia-scaled (``accel_rad_s2``) or energy-based, so a level
+    means a comparable push on every joint of every robot: at level 1, an impulse gives the
+    arm at rest at home the robot's ``impulse_j`` of kinetic energy in 50 ms; a periodic
+    torque accelerates each joint by up to 2 rad/s²; the noise preset adds sensor noise
+    (1 mrad, 10 mrad/s), actuation noise (1 rad/s² per joint inertia) and a 5 Hz
+    band-limited torque (1 rad/s²); a payload of ``payload_kg`` is picked up between 1 and
+    4 s; the mismatch preset scales link masses by ±20%, with damping 0.5/s and friction
+    0.5 rad/s²; the friction preset is that damping and friction alone at twice the size
+    (1/s and 1 rad/s² per unit of joint inertia, nominal masses); the delay preset reports
+    the state sampled 2 ms × level earlier (at least ⌈delay / Δt⌉ control steps). The
+    onsets (1-4 s) are the same at every level, so are the shortest episodes these accept
+    (:func:`~ptrack_gym.disturbances.base.min_horizon_s`: the latest onset + duration +
+    0.5 s of recovery): impulse and mixed 4.55 s, push 4.6 s, payload 4.5 s; the others
+    any length.
     """
     return _specs(name, level, profile.disturbance_scales)
 
@@ -93,9 +94,14 @@ def _specs(name: str, level: float, sc: DisturbanceScales) -> list[dict[str, Any
         # the joints' damping and friction alone, nominal masses: the dynamics a policy
         # trained under randomised masses has never met (issue 39's held-out dynamics)
         "friction": [
-            {"type": "mismatch", "mass_scale": 1.0, "damping_per_s": 1.0 * level,
-             "friction_rad_s2": 1.0 * level, "links": ()}
-        ],  # fmt: skip
+            {
+                "type": "mismatch",
+                "mass_scale": 1.0,
+                "damping_per_s": 1.0 * level,
+                "friction_rad_s2": 1.0 * level,
+                "links": (),
+            }
+        ],
     }
     if name == "mixed":
         return [

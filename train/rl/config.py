@@ -21,10 +21,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from agents.hold import check_decision_every
-from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
+from agents.registry import tuned_rates
 from agents.residual import (
     RESIDUAL_BASES,
+    ResidualSpec,
     check_base_gains,
     check_base_model,
     check_prior,
@@ -54,9 +54,8 @@ from train.rl.hyperparameters import (
     parse_set,
     resolve_hyperparams,
 )
-from train.rl.imitation import (
-    DaggerSpec,
-)
+from train.rl.imitation import DaggerSpec
+from train.rl.imitation_config import check_imitation
 from train.rl.resume import (
     check_resume_compatible,
     given_fields,
@@ -203,6 +202,12 @@ class TrainConfig:
     error (``agents.residual.PRIOR_ERROR_FEATURES``); with
     ``zero_init_residual`` the policy starts as the prior and ``actor_bc_weight`` pulls
     toward it. 0: none."""
+    tank: bool = False
+    """Residuals over a passivity law only: gate the learned torque by an energy tank filled
+    by the law's own dissipation (``agents.energy_tank``; the balance storage + tank ≤ the
+    start + pump, re-synchronisation and disturbance work holds whatever the policy does)."""
+    tank_beta: float = 0.5
+    """With ``tank``: β ∈ [0, 1], the fraction of the law's dissipation that fills the tank."""
     imitate: str | None = None
     """Pure SAC only: start the actor as a copy of this model-based controller (a name of
     ``agents.registry``) learned by DAgger before RL (``train.rl.imitation``); None: no
@@ -301,7 +306,7 @@ def validate(cfg: TrainConfig) -> Resolved:
         for name in ("actor_lr_scale", "actor_bc_weight"):
             if getattr(cfg, name) != _FIELD_DEFAULTS[name]:
                 raise TrainConfigError(f"{name} needs an actor optimizer (sac, td3)")
-    _validate_imitation(cfg)
+    check_imitation(cfg)
     if cfg.init_log_std is not None and cfg.algo != "sac":
         raise TrainConfigError("init_log_std is for sac only")
     env_extra: dict[str, Any] = {"reward": cfg.reward}
@@ -328,8 +333,11 @@ def validate(cfg: TrainConfig) -> Resolved:
             )
         check_split_envs(cfg, control_hz, max_episode_steps, env_extra)
         if residual_kwargs:
-            own = ("base_gains", "prior_gain_per_rad", "base_model")
+            own = ("base_gains", "prior_gain_per_rad", "base_model", "tank", "tank_beta")
             check_safeguards(**{k: v for k, v in residual_kwargs.items() if k not in own})
+            if cfg.tank or cfg.tank_beta != _FIELD_DEFAULTS["tank_beta"]:
+                ResidualSpec(base=cfg.residual, base_model=cfg.base_model, tank=cfg.tank,
+                             tank_beta=cfg.tank_beta)  # fmt: skip
             check_prior(cfg.residual, cfg.prior_gain_per_rad)
             check_base_model(cfg.residual, cfg.base_model, profile.name, cfg.base_gains)
             if cfg.base_gains == "tuned":
@@ -391,52 +399,6 @@ def validate(cfg: TrainConfig) -> Resolved:
         normalize_kwargs,
         env_extra,
         residual_kwargs,
-    )
-
-
-#: The demonstration pull's random stream, apart from DAgger's (seeded by the run's seed
-#: alone): np.random.default_rng([seed, DEMO_BC_STREAM, steps at its start]).
-DEMO_BC_STREAM = 7919
-
-
-def _validate_imitation(cfg: TrainConfig) -> None:
-    try:
-        check_decision_every(cfg.decision_every)
-    except InvalidConfigError as exc:
-        raise TrainConfigError(str(exc)) from None
-    if cfg.imitate is not None and cfg.decision_every != 1:
-        raise TrainConfigError("imitate labels every control step: keep decision_every 1")
-    if cfg.imitate is None:
-        if cfg.demo_bc_weight:
-            raise TrainConfigError("demo_bc_weight needs imitate (the expert's demonstrations)")
-        return
-    if cfg.imitate not in CONTROLLER_NAMES:
-        raise TrainConfigError(
-            f"unknown expert {cfg.imitate!r} for imitate; known: {list(CONTROLLER_NAMES)}"
-        )
-    if cfg.residual != "none" or cfg.algo != "sac":
-        raise TrainConfigError("imitate is for pure SAC (residual none, algo sac)")
-    if cfg.imitate_gains not in GAIN_CHOICES:
-        raise TrainConfigError(
-            f"imitate_gains must be one of {GAIN_CHOICES}, got {cfg.imitate_gains!r}"
-        )
-    if cfg.init_log_std is None:
-        raise TrainConfigError(
-            "imitate needs init_log_std: the fit trains the actor's mean only, so its "
-            "exploration std would be whatever the shared layers make of the log-std head"
-        )
-
-
-def dagger_spec(cfg: TrainConfig) -> DaggerSpec:
-    """The imitation a config asks for (``cfg.imitate`` set)."""
-    assert cfg.imitate is not None
-    return DaggerSpec(
-        controller=cfg.imitate,
-        gains=cfg.imitate_gains,
-        rounds=cfg.imitate_rounds,
-        first_steps=cfg.imitate_steps,
-        round_steps=cfg.imitate_round_steps,
-        noise=cfg.imitate_noise,
     )
 
 

@@ -78,10 +78,8 @@ from train.rl.checkpoints import (
     save_final,
 )
 from train.rl.config import (
-    DEMO_BC_STREAM,
     Resolved,
     TrainConfig,
-    dagger_spec,
     to_argv,
     validate,
 )
@@ -94,6 +92,7 @@ from train.rl.imitation import (
     load_demonstrations,
     save_demonstrations,
 )
+from train.rl.imitation_config import DEMO_BC_STREAM, dagger_spec
 
 
 class TrainResult(NamedTuple):
