@@ -145,3 +145,66 @@ def test_hierarchical_interval_covers_where_a_flat_one_does_not():
         hits_f += lo_f <= 0.0 <= hi_f
     assert hits_h / 200 >= 0.82
     assert hits_f / 200 <= hits_h / 200 - 0.2
+
+
+# -- learned entrants ----------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def residual_run(tmp_path_factory):
+    """A 100-step SAC residual over PD + gravity on the two-link (250 Hz, 1-s episodes)."""
+    pytest.importorskip("stable_baselines3")
+    from train.rl.config import parse_args
+    from train.rl.run import run
+
+    out = tmp_path_factory.mktemp("entrant") / "run"
+    run(parse_args([
+        "--algo", "sac", "--residual", "pd_gravity", "--steps", "100", "--out", str(out),
+        "--episode-s", "1.0", "--eval-freq", "1000", "--checkpoint-freq", "1000",
+        "--disturbance", "periodic:1.0", "--hp", "learning_starts=50", "--hp",
+        "batch_size=16", "--hp", "policy_kwargs=dict(net_arch=[16])",
+    ]))  # fmt: skip
+    return out
+
+
+def test_an_entrant_is_judged_on_the_test_paths_against_its_base(tmp_path, residual_run):
+    name = f"sb3:{residual_run}"
+    cfg = tiny(tmp_path / "v", seeds=2, entrants={"two_link": [name]})
+    out = run_verdict(cfg, progress=False)
+    df = load_frame(out / "episodes.csv")
+    mine = df[df["controller"] == name]
+    assert set(mine["path"]) == {"1", "2"} and len(mine) == 2 * 2 * 2
+    assert (mine["steps"] == 250).all()  # its own control rate, 1-s episodes
+    entrants = pd.read_csv(out / "entrants.csv")
+    assert set(entrants["controller"]) == {name} and set(entrants["reference"]) == {"pd_gravity"}
+    assert set(entrants["metric"]) == {"path_dist_rms", "time_err_rms"}
+    assert (entrants["pairs"] == 2 * 2).all()  # (path, seed) pairs
+    rivals = pd.read_csv(out / "rivals.csv")
+    assert name not in set(rivals["rival"])  # not a rival of the passivity controller
+    assert "## Learned entrants on the test paths" in (out / "verdict.md").read_text()
+
+
+def test_bad_entrants_are_refused_before_any_episode(tmp_path, residual_run):
+    import shutil
+
+    import yaml
+
+    name = f"sb3:{residual_run}"
+    with pytest.raises(InvalidConfigError, match="not sb3:<run folder>"):
+        tiny(tmp_path / "a", entrants={"two_link": ["pd_gravity"]}).validate()
+    with pytest.raises(InvalidConfigError, match="not one of the robots"):
+        tiny(tmp_path / "a", entrants={"iiwa": [name]}).validate()
+    with pytest.raises(InvalidConfigError, match="is compared with pd_gravity, which is not"):
+        tiny(tmp_path / "a", controllers=["passivity", "computed_torque"],
+             entrants={"two_link": [name]}).validate()  # fmt: skip
+    with pytest.raises(InvalidConfigError, match="base ran with default gains"):
+        with pytest.MonkeyPatch.context() as m:
+            m.setattr(vs, "tuned_rates", lambda robot, c: {})
+            m.setattr(vs, "tuned_validation_paths", lambda robot, c: set())
+            tiny(tmp_path / "a", gains="tuned", entrants={"two_link": [name]}).validate()
+    seen = tmp_path / "seen"  # a copy of the run that trained on test path 2
+    shutil.copytree(residual_run, seen)
+    saved = yaml.safe_load((seen / "config.yml").read_text())
+    saved["config"]["train_paths"] = [2, 40]
+    (seen / "config.yml").write_text(yaml.safe_dump(saved))
+    with pytest.raises(InvalidConfigError, match=r"paths \[2\], test paths here"):
+        run_verdict(tiny(tmp_path / "b", entrants={"two_link": [f"sb3:{seen}"]}), progress=False)
+    assert not (tmp_path / "b" / "episodes.csv").exists()

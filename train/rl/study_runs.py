@@ -23,15 +23,17 @@ _CKPT = re.compile(r"rl_model_(\d+)_steps\.zip$")
 _CAMPAIGN_RUN = re.compile(r"^(.+)_s(\d+)$")
 
 #: The run-config keys every run of a study must share (``decision_every`` too: the steps of
-#: its checkpoints and Monitor logs are decisions, so one step axis needs one period).
-SHARED_KEYS = ("algo", "env_id", "disturbance", "episode_s", "start", "decision_every")
+#: its checkpoints and Monitor logs are decisions, so one step axis needs one period). The
+#: algorithm is a group's: the steps are env steps whatever learns from them.
+SHARED_KEYS = ("env_id", "disturbance", "episode_s", "start", "decision_every")
 #: Their values for a run written before a key existed (it ran with the default).
 SHARED_KEY_DEFAULTS: dict[str, object] = {"decision_every": 1}
 
 #: The keys the runs of one group must share too (groups may differ in them: each has its
 #: own reward, hyperparameters and safeguards).
 GROUP_KEYS = (
-    "reward_weights", "reward", "kernel_weights", "max_path_distance", "hyperparams",
+    "algo", "tank", "tank_beta", "reward_weights", "reward", "kernel_weights",
+    "max_path_distance", "hyperparams",
     "overrides", "scale_fraction", "scale_accel_rad_s2", "zero_init_residual", "action_penalty",
     "gate_rad", "gate_deadband_rad", "init_log_std", "critic_warmup_steps", "actor_lr_scale",
     "actor_bc_weight", "prior_gain_per_rad", "base_model", "freeze_actor",
@@ -41,7 +43,8 @@ GROUP_KEYS = (
 #: not imported, which would import torch): a run written before a key existed lacks it in
 #: its config.yml and ran with the default, so it groups with runs that write the default.
 GROUP_KEY_DEFAULTS: dict[str, object] = {
-    "reward_weights": None, "reward": "quadratic", "kernel_weights": None,
+    "algo": "sac", "tank": False, "tank_beta": 0.5, "reward_weights": None,
+    "reward": "quadratic", "kernel_weights": None,
     "max_path_distance": None, "hyperparams": None, "overrides": {}, "scale_fraction": 0.1,
     "scale_accel_rad_s2": None, "zero_init_residual": False, "action_penalty": 0.0,
     "gate_rad": None, "gate_deadband_rad": 0.0, "init_log_std": None, "critic_warmup_steps": 0,

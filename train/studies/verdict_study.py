@@ -82,6 +82,10 @@ class VerdictConfig:
     """Controllers of ``agents.registry`` (the focus, ``passivity``, among them)."""
     gains: str = "tuned"
     """"tuned" (``agents/tuned``: every robot × controller must have a file) or "default"."""
+    entrants: dict[str, list[str]] = field(default_factory=dict)
+    """Learned entrants per robot, ``{robot: ["sb3:<run folder>", …]}``: judged on the same
+    test paths (never their training or evaluation paths) against their reference, not as
+    rivals of the passivity controller (:mod:`train.studies.verdict_entrants`)."""
     test_paths: list[int] = field(default_factory=lambda: list(range(1, 9)))
     """Seeds of the random admissible test paths (each robot draws its own path per seed)."""
     disturbances: list[str] = field(
@@ -157,6 +161,13 @@ class VerdictConfig:
                             "here: test on other path seeds"
                         )
 
+        if self.entrants:
+            from train.studies.verdict_entrants import check_entrants
+
+            check_entrants(
+                self.entrants, self.robots, self.controllers, self.test_paths, self.gains
+            )
+
     def conditions(self) -> list[tuple[str, float]]:
         """(preset, level) of every condition: "none" once at level 0, the others at each level."""
         out = [("none", 0.0)] if "none" in self.disturbances else []
@@ -165,15 +176,16 @@ class VerdictConfig:
         ]
 
     def tasks(self) -> list[tuple[str, int, Task]]:
-        """Every episode: (robot, path seed, task), the controllers innermost (a pair's
-        episodes run side by side, so a partial run holds whole pairs)."""
+        """Every episode: (robot, path seed, task), the controllers (then the robot's
+        entrants) innermost (a pair's episodes run side by side, so a partial run holds whole
+        pairs)."""
         return [
             (robot, p, Task(c, d, lv, s, 0))
             for robot in self.robots
             for p in self.test_paths
             for d, lv in self.conditions()
             for s in range(self.seeds)
-            for c in self.controllers
+            for c in [*self.controllers, *self.entrants.get(robot, [])]
         ]
 
     def settings(self, robot: str, path_seed: int) -> EpisodeSettings:
@@ -239,8 +251,8 @@ def rivals(cfg: VerdictConfig, df: pd.DataFrame) -> pd.DataFrame:
     """Per robot and metric, :func:`rival_comparisons` of the focus over the robot's
     conditions (Holm's family: one robot, one metric); pairs are (path, seed, episode)."""
     parts = []
-    for robot in cfg.robots:
-        sub = df[df["robot"] == robot]
+    for robot in cfg.robots:  # the model-based controllers only: entrants are not rivals
+        sub = df[(df["robot"] == robot) & df["controller"].isin(cfg.controllers)]
         if sub.empty:
             continue
         for metric in BOTH_METRICS:
@@ -355,4 +367,16 @@ def write_report(cfg: VerdictConfig, out: Path) -> None:
             + "."
         )
         lines += ["", ranking_table(sub, BOTH_METRICS)]
+    if cfg.entrants:
+        from train.studies.verdict_entrants import entrant_comparisons, entrants_markdown
+
+        entrants = entrant_comparisons(cfg.entrants, df, cfg.resamples)
+        entrants.to_csv(out / "entrants.csv", index=False, float_format="%.6g")
+        lines += [
+            "", "## Learned entrants on the test paths", "",
+            "Each against its reference (a residual's base, else PD + gravity or the "
+            "controller it imitated): exact paired sign-flip tests over the (path, seed) "
+            "pairs, Holm over one robot, metric and reference; `entrants.csv`.", "",
+            entrants_markdown(entrants),
+        ]  # fmt: skip
     (out / "verdict.md").write_text("\n".join(lines) + "\n")

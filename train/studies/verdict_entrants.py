@@ -1,0 +1,139 @@
+"""Learned entrants in the verdict (:mod:`train.studies.verdict_study`): trained runs
+(``sb3:<run folder>``) judged on the verdict's test paths beside the model-based
+controllers — paths they never trained or were evaluated on during training.
+
+An entrant runs at its own control rate and in its own observation (``-v0`` or ``-v1``),
+with the disturbance draws of the same (path, seed) as every controller, so it is paired with
+them like any controller. Each is compared with its **reference** — the base controller of a
+residual, the controller a pure policy imitated, else PD + gravity — by the exact paired
+sign-flip test over the (path, seed) pairs (:func:`train.common.paired_tests.
+paired_comparisons`), Holm's step-down over one robot, one metric and one reference (every
+entrant of that reference in every condition). The entrants are not rivals in the
+passivity controller's verdict: that one compares the model-based laws.
+
+Refused before any episode: an entrant that is not ``sb3:``, a run of another robot, a run
+whose training or evaluation paths include a test path, a residual whose base ran with other
+gains than the verdict's, a reference that is not among the verdict's controllers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import pandas as pd
+
+from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.robots import ROBOTS
+from train.common.paired_tests import TooFewPairsError, paired_comparisons
+from train.evaluation.verdict import BOTH_METRICS, condition_name, words
+
+#: What a pure policy that imitated nothing is compared with.
+PURE_REFERENCE = "pd_gravity"
+
+
+def _run_config(name: str) -> dict[str, Any]:
+    from train.evaluation.policies import run_config, sb3_files
+
+    return dict(run_config(sb3_files(name)[0])["config"])
+
+
+def entrant_reference(name: str) -> str:
+    """The controller entrant ``name`` (``sb3:<run>``) is compared with: a residual's base
+    (a network base: its model), a pure policy's imitated controller, else PD + gravity."""
+    c = _run_config(name)
+    base = str(c["residual"])
+    if base == "network":
+        return f"sb3:{c['base_model']}"
+    if base != "none":
+        return base
+    return str(c.get("imitate") or PURE_REFERENCE)
+
+
+def check_entrants(
+    entrants: Mapping[str, Sequence[str]],
+    robots: Sequence[str],
+    controllers: Sequence[str],
+    test_paths: Sequence[int],
+    gains: str,
+) -> None:
+    """Raise :class:`InvalidConfigError` for a bad entrant (module docstring)."""
+    from train.evaluation.policies import SB3_PREFIX, check_sb3_run
+
+    if not isinstance(entrants, Mapping):
+        raise InvalidConfigError(f"entrants must map robots to sb3:<run> lists, got {entrants!r}")
+    for robot, names in entrants.items():
+        if robot not in robots:
+            raise InvalidConfigError(f"entrants: {robot!r} is not one of the robots {robots}")
+        if isinstance(names, str) or len(set(names)) != len(names):
+            raise InvalidConfigError(
+                f"entrants of {robot}: a list of distinct names, got {names!r}"
+            )
+        for name in names:
+            if not (isinstance(name, str) and name.startswith(SB3_PREFIX)):
+                raise InvalidConfigError(f"entrants of {robot}: {name!r} is not sb3:<run folder>")
+            check_sb3_run(name, ROBOTS[robot].env_id)
+            c = _run_config(name)
+            seen = {int(p) for key in ("train_paths", "eval_paths") for p in c.get(key) or []}
+            shared = sorted(seen & set(test_paths))
+            if shared:
+                raise InvalidConfigError(
+                    f"{name} trained or was evaluated on paths {shared}, test paths here: an "
+                    "entrant is judged on paths it never saw"
+                )
+            if c["residual"] not in ("none", "network") and c.get("base_gains", "default") != gains:
+                raise InvalidConfigError(
+                    f"{name}'s base ran with {c.get('base_gains', 'default')} gains, the "
+                    f"verdict's controllers with {gains}: compare a residual with its own base"
+                )
+            reference = entrant_reference(name)
+            if reference not in controllers:
+                raise InvalidConfigError(
+                    f"{name} is compared with {reference}, which is not among the controllers"
+                )
+
+
+def entrant_comparisons(
+    entrants: Mapping[str, Sequence[str]], df: pd.DataFrame, resamples: int
+) -> pd.DataFrame:
+    """Per robot, metric and reference: each of its entrants against it in every condition
+    (``paired_comparisons``; pairs (path, seed, episode)); a ``robot`` and a ``reference``
+    column added. Empty when no entrant has two pairs yet."""
+    parts = []
+    for robot, names in entrants.items():
+        by_reference: dict[str, list[str]] = {}
+        for name in names:
+            by_reference.setdefault(entrant_reference(name), []).append(name)
+        for reference, group in by_reference.items():
+            sub = df[(df["robot"] == robot) & df["controller"].isin([reference, *group])]
+            if not set(group) & set(sub["controller"]) or reference not in set(sub["controller"]):
+                continue
+            for metric in BOTH_METRICS:
+                try:
+                    table = paired_comparisons(sub, metric, reference, resamples=resamples)
+                except TooFewPairsError:  # a partial run
+                    continue
+                parts.append(table.assign(robot=robot, reference=reference))
+    if not parts:
+        return pd.DataFrame()
+    out = pd.concat(parts, ignore_index=True)
+    return out[["robot", "reference", *[c for c in out.columns if c not in ("robot", "reference")]]]
+
+
+def entrants_markdown(table: pd.DataFrame) -> str:
+    """Markdown: per robot, each entrant against its reference in every condition, both
+    metrics (ratio of means, Holm-adjusted p, mark)."""
+    if not len(table):
+        return "No entrant has two pairs with its reference yet."
+    lines = [
+        "| robot | entrant | reference | condition | metric | entrant / reference | p (Holm) "
+        "| mark | pairs |",
+        "|---|---|---|---|---|---:|---:|---|---:|",
+    ]
+    for _, r in table.iterrows():
+        lines.append(
+            f"| {r['robot']} | {r['controller']} | {r['reference']} | "
+            f"{condition_name(r['disturbance'], float(r['level']))} | {words(r['metric'])} | "
+            f"{r['ratio']:.3g} | {r['p_holm']:.3g} | {r['mark']} | {int(r['pairs'])} |"
+        )
+    return "\n".join(lines)
