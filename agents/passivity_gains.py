@@ -1,0 +1,277 @@
+"""The passivity controller's gains (:class:`PassivityGains`) and how they are made from
+rates (:mod:`agents.passivity`, the law).
+
+Default gains (:func:`default_gains`) are set by rates and an inertia floor, the same on
+every robot, made absolute with the robot's home-pose joint inertias, the mean M_r of the
+path in use (M̄_r, the "mass" of the path-parameter dynamics M_r(s) s̈ = …) and the control
+period dt:
+
+* K_j = min(ω² · max(M_jj(q_home), m_floor), (α/dt)² M_jj)   spring of φ (N·m/rad)
+* D_j = c K_j dt                                             damper beside φ (N·m·s/rad)
+* κ = ω_s² M̄_r,  R = ρ M̄_r,  k_pump = λ / M̄_r ("metric" pump)
+
+then capped for the rate from the path's extremes (:func:`cap_for_rate`): K and D scaled
+together where the fastest coupled mode of M(q)⁻¹K on the path would turn more than 0.8 rad
+per sample, R lowered where (R + q_r'ᵀDq_r')/M_r(s) dt would exceed 1.6 on the slowest
+stretch. The rates are :data:`DEFAULT_RATES` updated by the robot profile's
+``controller_gains["passivity"]`` (ω, ω_s in rad/s; ρ, λ in 1/s; m_floor in kg·m²; c; γ in
+1/s and r̄ for the re-synchronisation); α = :data:`agents.gains.MAX_FREQUENCY_PER_SAMPLE`
+rad per sample (:func:`agents.gains.cap_stiffness`).
+The study that chose them is ``docs/passivity_gain_study.md``; the discretization, its
+rate limit (:meth:`PassivityController.max_period_s`) and the caps: ``docs/control_rates.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from agents.base import ControlContext, FloatArray
+from agents.gains import cap_stiffness, max_mode_frequency, rates
+from agents.passivity_sampling import PHASE_DAMPING_LIMIT, spring_angle_limit
+from agents.passivity_tables import PassivityTables, passivity_tables
+from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
+
+NAME = "passivity"
+#: Generic default rates (see the module docstring).
+DEFAULT_RATES: dict[str, Any] = {
+    "omega": 20.0,
+    "omega_s": 20.0,
+    "rho": 10.0,
+    "lam": 2.0,
+    "pump": "metric",
+    "m_floor": 0.1,
+    "sync_rate": 0.0,
+    "sync_ratio": 0.5,
+    "saturation_aware": True,
+    "zoh_damping": 1.0,
+}
+#: The rates one gain scale multiplies (``train.studies.fronts``): the joint and the
+#: phase spring bandwidths (the damping rates ρ, λ stay).
+BANDWIDTHS = ("omega", "omega_s")
+#: What the tuner (``train.studies.tune``) searches: rate → (low, high, log scale); the rest (the
+#: inertia floor, the re-synchronisation, the remedy) stays the robot's.
+TUNABLE = {
+    "omega": (3.0, 100.0, True),
+    "omega_s": (3.0, 100.0, True),
+    "rho": (2.0, 40.0, True),
+    "lam": (0.5, 10.0, True),
+}
+#: The paper's law exactly (the ``passivity_paper`` controller): no re-synchronisation of σ,
+#: no saturation-aware reference torque — whatever a robot's defaults or tuned rates say.
+PAPER_LAW = {"sync_rate": 0.0, "saturation_aware": False, "zoh_damping": 0.0}
+
+_PUMPS = ("metric", "paper")
+#: The default and tuned gains run at most this fraction of their stated period limit
+#: (:func:`cap_for_rate`, :meth:`PassivityController.max_period_s`).
+RATE_MARGIN = 0.8
+
+
+@dataclass(frozen=True)
+class PassivityGains:
+    """Gains of the passivity controller.
+
+    Attributes:
+        K: spring stiffness of φ (N·m/rad): a scalar (K·I) or one value per joint (diagonal).
+        D: damping (N·m·s/rad) of a damper in parallel with φ's spring, acting on the rate
+            of its stretch ė = q̇ − q_r'(s) ṡ: a scalar or one value per joint (diagonal),
+            each ≥ 0. NOT in the paper; 0 (the dataclass default) is the paper's law. The
+            default gains set D = c K dt (``zoh_damping`` c): twice the energy a zero-order
+            hold of period dt feeds into the spring (see :meth:`PassivityController.law`).
+        kappa: κ > 0, stiffness of the phase spring ψ = ½κ s̃² (J/s²).
+        R: R > 0, damping of the phase-rate error s̃̇ (J·s/s² = J/s).
+        k_pump: k ≥ 0, energy-pump gain (1/(J·s) for "metric", N·m·s/(rad·J) for "paper").
+        pump: "metric" — f = −k(H + W_r(σ)) M q̇ (coordinate-free, default) — or "paper" —
+            f = −k(H + W_r(σ)) q̇ (the paper's written form).
+        speed_eps: below this √(q̇ᵀMq̇) (√J) the direction τ_q̇/speed is taken as 0, as the
+            paper prescribes for speed ≈ 0; keeps the law finite at rest.
+        sync_rate: γ ≥ 0 (1/s), phase re-synchronisation of σ — NOT in the paper;
+            0 (the default) is the paper's law exactly. With γ > 0, while the speed ratio
+            v/√M_r(s) is below ``sync_ratio``, σ is also pulled toward the arm's own phase
+            on the path (see :meth:`PassivityController.law`), which frees the stall trap
+            of the paper's law. Above ``sync_ratio`` the law is the paper's.
+        sync_ratio: r̄ > 0, the speed ratio v/√M_r(s) below which ``sync_rate`` acts
+            (with a smooth step: full strength at rest, none from r̄ on).
+        torque_limits_nm: the actuators' limits τ_max (N·m, one per joint), or None (the
+            dataclass default: the paper's law). NOT in the paper: when given, the law is
+            saturation-aware — the work-free reference torque τ_r⁰ is scaled into the box
+            |τ_j| ≤ τ_max,j (see :meth:`PassivityController.law`), so the actuators deliver
+            the law's torque instead of a clipped one that does work the law never
+            commanded; the law is the paper's whenever its torque fits in the box.
+    """
+
+    K: float | tuple[float, ...] = 100.0
+    D: float | tuple[float, ...] = 0.0
+    kappa: float = 10.0
+    R: float = 0.2
+    k_pump: float = 20.0
+    pump: str = "metric"
+    speed_eps: float = 1e-6
+    sync_rate: float = 0.0
+    sync_ratio: float = 0.5
+    torque_limits_nm: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        k = np.atleast_1d(np.asarray(self.K, dtype=np.float64))
+        if k.ndim != 1 or not np.all(np.isfinite(k)) or np.any(k <= 0):
+            raise InvalidConfigError(
+                f"K must be a positive scalar or positive per-joint values, got {self.K!r}"
+            )
+        d = np.atleast_1d(np.asarray(self.D, dtype=np.float64))
+        if d.ndim != 1 or not np.all(np.isfinite(d)) or np.any(d < 0):
+            raise InvalidConfigError(
+                f"D must be a scalar or per-joint values, each finite and >= 0, got {self.D!r}"
+            )
+        for name in ("kappa", "R"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise InvalidConfigError(f"{name} must be a positive number, got {v!r}")
+        if not (np.isfinite(self.k_pump) and self.k_pump >= 0):
+            raise InvalidConfigError(f"k_pump must be >= 0, got {self.k_pump!r}")
+        if self.pump not in _PUMPS:
+            raise InvalidConfigError(f"pump must be one of {_PUMPS}, got {self.pump!r}")
+        if not (np.isfinite(self.speed_eps) and self.speed_eps > 0):
+            raise InvalidConfigError(f"speed_eps must be positive, got {self.speed_eps!r}")
+        if not (np.isfinite(self.sync_rate) and self.sync_rate >= 0):
+            raise InvalidConfigError(f"sync_rate must be >= 0, got {self.sync_rate!r}")
+        if not (np.isfinite(self.sync_ratio) and self.sync_ratio > 0):
+            raise InvalidConfigError(f"sync_ratio must be positive, got {self.sync_ratio!r}")
+        if self.torque_limits_nm is not None:
+            lim = np.asarray(self.torque_limits_nm, dtype=np.float64)
+            if lim.ndim != 1 or lim.size == 0 or not np.all(np.isfinite(lim)) or np.any(lim <= 0):
+                raise InvalidConfigError(
+                    f"torque_limits_nm must be None or positive per-joint values, "
+                    f"got {self.torque_limits_nm!r}"
+                )
+            object.__setattr__(self, "torque_limits_nm", tuple(float(x) for x in lim))
+
+    @classmethod
+    def from_rates(
+        cls,
+        inertia_kgm2: FloatArray,
+        mean_m_r_j: float,
+        omega: float,
+        omega_s: float,
+        rho: float,
+        lam: float,
+        pump: str = "metric",
+        m_floor: float = 0.0,
+        sync_rate: float = 0.0,
+        sync_ratio: float = 0.5,
+        dt_s: float | None = None,
+        torque_limits_nm: tuple[float, ...] | None = None,
+        zoh_damping: float = 0.0,
+    ) -> PassivityGains:
+        """Absolute gains from rates (the module docstring's formulas): K_j = ω² ·
+        max(M_jj, m_floor), capped by :func:`agents.gains.cap_stiffness` when the control
+        period ``dt_s`` (s) is given; D_j = c K_j dt with c = ``zoh_damping`` (0 without
+        ``dt_s``); κ = ω_s² M̄_r, R = ρ M̄_r, k_pump = λ / M̄_r; ``torque_limits_nm`` makes
+        the law saturation-aware.
+
+        Args:
+            inertia_kgm2: the joint inertias that scale K, e.g. diag M(q_home) (kg·m²).
+            mean_m_r_j: M̄_r, the mean of M_r(s) over the path (J).
+        """
+        m = np.asarray(inertia_kgm2, dtype=np.float64)
+        if not (np.isfinite(mean_m_r_j) and mean_m_r_j > 0):
+            raise InvalidConfigError(f"mean_m_r_j must be positive, got {mean_m_r_j!r}")
+        if not (np.isfinite(zoh_damping) and zoh_damping >= 0):
+            raise InvalidConfigError(f"zoh_damping must be >= 0, got {zoh_damping!r}")
+        stiffness = omega**2 * np.maximum(m, m_floor)
+        damping = np.zeros_like(stiffness)
+        if dt_s is not None:
+            stiffness = cap_stiffness(stiffness, m, dt_s)
+            damping = zoh_damping * stiffness * dt_s
+        return cls(
+            K=tuple(float(k) for k in stiffness),
+            D=tuple(float(d) for d in damping),
+            kappa=float(omega_s**2 * mean_m_r_j),
+            R=float(rho * mean_m_r_j),
+            k_pump=float(lam / mean_m_r_j),
+            pump=pump,
+            sync_rate=float(sync_rate),
+            sync_ratio=float(sync_ratio),
+            torque_limits_nm=torque_limits_nm,
+        )
+
+    def stiffness(self, n: int) -> FloatArray:
+        """The diagonal of K as an (n,) array (N·m/rad)."""
+        return _diagonal(self.K, n, "K")
+
+    def damping(self, n: int) -> FloatArray:
+        """The diagonal of D as an (n,) array (N·m·s/rad)."""
+        return _diagonal(self.D, n, "D")
+
+
+def _diagonal(value: float | tuple[float, ...], n: int, name: str) -> FloatArray:
+    """A scalar or per-joint gain as its (n,) diagonal."""
+    k = np.atleast_1d(np.asarray(value, dtype=np.float64))
+    if k.shape == (1,):
+        return np.full(n, k[0])
+    if k.shape != (n,):
+        raise InvalidConfigError(f"{name} has {k.shape[0]} entries, the robot has {n} joints")
+    return k.copy()
+
+
+def gains_from_rates(
+    ctx: ControlContext, given: Mapping[str, Any] | None, tables: PassivityTables | None = None
+) -> PassivityGains:
+    """Absolute gains from rates — ``DEFAULT_RATES``, updated by the robot's profile rates,
+    updated by ``given`` — for the context's path and control rate: inertias from the
+    model, M̄_r from the tables, the actuator box from the profile when
+    ``saturation_aware``."""
+    r = rates(DEFAULT_RATES, given, NAME, ctx.profile.controller_gains.get(NAME))
+    aware = bool(r.pop("saturation_aware"))
+    tables = tables or passivity_tables(ctx.path, ctx.model)
+    inertia = home_inertia_kgm2(ctx.model, ctx.profile)
+    gains = PassivityGains.from_rates(
+        inertia, tables.mean_m_r, dt_s=ctx.dt_s,
+        torque_limits_nm=ctx.profile.torque_limits_nm if aware else None, **r,
+    )  # fmt: skip
+    return cap_for_rate(gains, ctx.model, tables, ctx.dt_s)
+
+
+def cap_for_rate(
+    gains: PassivityGains, model: RobotModel, tables: PassivityTables, dt_s: float
+) -> PassivityGains:
+    """``gains`` such that the control period ``dt_s`` is at most 80% (:data:`RATE_MARGIN`)
+    of each limit of :meth:`PassivityController.max_period_s`:
+
+    * K and D scaled by one factor where needed so that the fastest mode of φ's springs on
+      the path (:func:`~agents.gains.max_mode_frequency`) turns at most 0.8 θ(0.8 c) rad per
+      period, θ the spring limit (:func:`~agents.passivity_sampling.spring_angle_limit`) and
+      c = min_j D_j/(K_j dt) — what it would be at the period dt/0.8 (scaling K and D
+      together keeps c); the per-joint cap reads M's diagonal at home only;
+    * R lowered where needed so that (R + q_r'ᵀD q_r')/M_r(s) dt ≤ 0.8 · 2 on the path's
+      slowest stretch (the extremes of M_r(s), not its mean M̄_r that R = ρ M̄_r scales by).
+    """
+    n = model.n
+    stiffness = gains.stiffness(n)
+    c = float(np.min(gains.damping(n) / stiffness)) / dt_s
+    angle = RATE_MARGIN * spring_angle_limit(RATE_MARGIN * c)
+    omega = max_mode_frequency(model, tables.q_samples(), stiffness)
+    if omega * dt_s > angle:
+        scale = (angle / (omega * dt_s)) ** 2
+        gains = dataclasses.replace(
+            gains,
+            K=tuple(float(k) for k in scale * stiffness),
+            D=tuple(float(d) for d in scale * gains.damping(n)),
+        )
+    cols = tables.columns
+    qd, m_r = cols[:, n : 2 * n], cols[:, 3 * n]
+    damper = np.einsum("ij,j,ij->i", qd, gains.damping(n), qd)  # q_r'ᵀD q_r' (J·s)
+    r_max = float(np.min(RATE_MARGIN * PHASE_DAMPING_LIMIT * m_r / dt_s - damper))
+    if gains.R > r_max > 0.0:
+        gains = dataclasses.replace(gains, R=r_max)
+    return gains
+
+
+def default_gains(ctx: ControlContext, tables: PassivityTables | None = None) -> PassivityGains:
+    """The robot's default gains for the context's path and control rate (module
+    docstring): the profile's rates."""
+    return gains_from_rates(ctx, None, tables)
