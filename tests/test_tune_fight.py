@@ -431,3 +431,21 @@ def test_the_feedforward_of_a_diverged_phase_is_nan_not_a_warning() -> None:
     q, qd, qdd = u.path.evaluate(0.3)
     np.testing.assert_allclose(tau[4], u.model.inverse_dynamics(q, qd, qdd), rtol=1e-12)
     env.close()
+
+
+def test_a_later_seed_starts_in_the_box_the_seed_before_it_ended_in(tmp_path):
+    # seed 0 widens ω twice (ω* = 300 past [3, 100]); seed 1 starts in [3, 900] and needs no
+    # widening; without carry_boxes it starts over in [3, 100] and widens again
+    bowl = Bowl(omega=300.0, zeta=1.0)
+    kw = dict(study_seeds=[0, 1], trials=25, startup_trials=8, widen_on_bound=True)
+    result = tune(fight(tmp_path / "carry", **kw), progress=False, objective=bowl)
+    seeds = result["computed_torque"]["seeds"]
+    assert seeds[0]["widenings"] == 2 and seeds[1]["widenings"] == 0
+    assert seeds[1]["box"]["omega"] == [3.0, 900.0, True]
+    studies = _journal_studies(tmp_path / "carry")
+    assert study_name("computed_torque", 1, 1) not in studies  # no rerun of seed 1
+    # a resume reads each seed's own box back, whatever the config's box says
+    again = tune(fight(tmp_path / "carry", **kw), resume=True, progress=False, objective=bowl)
+    assert again["computed_torque"]["seeds"][1] == seeds[1]
+    alone = tune(fight(tmp_path / "own", carry_boxes=False, **kw), progress=False, objective=bowl)
+    assert alone["computed_torque"]["seeds"][1]["widenings"] == 2

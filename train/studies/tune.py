@@ -42,7 +42,10 @@ controller, so that a ranking of tuned controllers is a ranking of laws, not of 
   linear space, never to the rate's floor), at most ``max_widenings`` times. A bound is not
   widened where moving the rate there changes nothing the controller does (its torques at a
   probe state are equal: ``gains_from_rates`` caps the rate at the control rate, the
-  per-sample cap), nor past a floor; such a rate is reported as "capped" or "at the floor";
+  per-sample cap), nor past a floor; such a rate is reported as "capped" or "at the floor".
+  With ``carry_boxes`` (default) the next study seed starts in the box the seed before it
+  ended in: a bound one seed found too tight is not found again, at N_c trials a widening,
+  by every seed (each seed still widens its own box where its optimum sits on it);
 * validation paths must not be test paths of ``test_config`` (the main job's), and on the
   same path the validation seeds must not meet its test seeds: the tuned gains are chosen
   on other episodes than those they are judged on.
@@ -97,7 +100,14 @@ __all__ = [
     "tuned_table",
 ]
 #: Settings a resume may change: a larger budget, more seeds, more widenings.
-FREE_FIELDS = ("trials", "trials_per_rate", "study_seeds", "widen_on_bound", "max_widenings")
+FREE_FIELDS = (
+    "trials",
+    "trials_per_rate",
+    "study_seeds",
+    "widen_on_bound",
+    "max_widenings",
+    "carry_boxes",
+)
 
 
 def tune(

@@ -79,6 +79,9 @@ class TuneConfig:
     """Rerun a seed whose winning rate lies within 5% of a bound, with that bound widened."""
     max_widenings: int = 2
     """Most reruns with widened bounds per controller and seed."""
+    carry_boxes: bool = True
+    """A study seed starts in the box the previous seed ended in (its widenings kept);
+    False: every seed starts in the controller's box."""
     test_config: str = str(DEFAULT_TEST_CONFIG)
     """The evaluation config whose seeds the validation seeds must avoid."""
     workers: int = 0

@@ -114,7 +114,7 @@ class SeedStudies:
         """The best feasible trial of ``controller``'s study seed ``seed`` over its rounds
         (each widening one), with the rates on a bound of the last box and why they stay
         there; None if no trial was feasible."""
-        cfg, box = self.cfg, self.cfg.box(controller)
+        cfg, box = self.cfg, self._start_box(controller, seed)
         last = cfg.max_widenings if cfg.widen_on_bound else 0
         if self.progress:
             print(f"{study_name(controller, seed)}: {cfg.study_trials(controller)} trials a "
@@ -156,6 +156,31 @@ class SeedStudies:
                 sum((t.datetime_complete - t.datetime_start).total_seconds() for t in new), 1
             ),
         }
+
+    def _stored_box(self, name: str) -> Box | None:
+        """The box the journal's study ``name`` searched (None: no such study)."""
+        if name not in self.optuna.study.get_all_study_names(self.storage):
+            return None
+        stored = self.optuna.load_study(study_name=name, storage=self.storage).user_attrs
+        box = stored.get("box")
+        return None if box is None else {k: (float(lo), float(hi), bool(log))
+                                         for k, (lo, hi, log) in box.items()}  # fmt: skip
+
+    def _start_box(self, controller: str, seed: int) -> Box:
+        """The box round 0 of ``seed`` searches: the one it did (a resumed study); with
+        ``carry_boxes``, the box the previous study seed ended in (its widenings kept: a
+        bound found too tight is not found again by every seed); else the config's."""
+        cfg = self.cfg
+        stored = self._stored_box(study_name(controller, seed, 0))
+        if stored is not None:
+            return stored
+        seeds = list(cfg.study_seeds)
+        if not cfg.carry_boxes or seeds.index(seed) == 0:
+            return cfg.box(controller)
+        previous, box, r = seeds[seeds.index(seed) - 1], None, 0
+        while (found := self._stored_box(study_name(controller, previous, r))) is not None:
+            box, r = found, r + 1
+        return box or cfg.box(controller)
 
     def _feasible(self, trial: Any) -> bool:
         return bool(trial.user_attrs["effort"] <= self.budget)
