@@ -5,7 +5,9 @@ Three variants of the env of ``ptrack train`` (the robot's default control rate,
 episodes, start on the path, no disturbance): *pure* (no base controller), *residual,
 no features* (the base controller, the inner observation only: the same network input
 as pure, so the difference is the controller's cost) and *residual* (the default: the
-controller's features appended, which also widens the network's input). SAC uses the
+controller's features appended, which also widens the network's input); over a passivity
+base a fourth, *energy tank* (the residual gated by the tank: its prediction and
+bookkeeping per step). ``--env-only`` measures the envs' rates without SAC. SAC uses the
 packaged ``train/hyperparams/sac.yml`` except ``learning_starts`` (= ``--warmup``) and
 the buffer size. For each variant: build the env and SAC, run ``--warmup`` + 50 steps
 untimed, then time ``--steps`` more steps of ``learn`` (one gradient step each). The
@@ -31,6 +33,7 @@ the optional ``sbx`` extra: a row says so when it is missing).
 from __future__ import annotations
 
 import argparse
+import math
 import statistics
 import sys
 import time
@@ -49,9 +52,12 @@ from agents.residual import make_residual_env
 from train.rl.config import TrainConfig, validate
 
 
-def make(env_id: str, residual: str, features: bool = True) -> tuple[gym.Env, dict]:
+def make(
+    env_id: str, residual: str, features: bool = True, tank: bool = False
+) -> tuple[gym.Env, dict]:
     """The training env of ``ptrack train`` (residual "none" or a base controller, with or
-    without its features) and the resolved SAC hyperparameters."""
+    without its features, gated by the energy tank or not) and the resolved SAC
+    hyperparameters."""
     res = validate(TrainConfig(out="/nonexistent", algo="sac", env_id=env_id, residual=residual))
     env_kwargs = {
         "control_hz": res.control_hz,
@@ -60,7 +66,9 @@ def make(env_id: str, residual: str, features: bool = True) -> tuple[gym.Env, di
     }
     if residual == "none":
         return gym.make(env_id, **env_kwargs), res.algo_kwargs
-    env = make_residual_env(env_id, residual, include_controller_state=features, **env_kwargs)
+    env = make_residual_env(
+        env_id, residual, include_controller_state=features, tank=tank, **env_kwargs
+    )
     return env, res.algo_kwargs
 
 
@@ -74,11 +82,17 @@ def timed_learn(model: Any, untimed: int, steps: int) -> float:
 
 
 def sac_steps_per_s(
-    env_id: str, residual: str, features: bool, steps: int, warmup: int, seed: int
+    env_id: str,
+    residual: str,
+    features: bool,
+    steps: int,
+    warmup: int,
+    seed: int,
+    tank: bool = False,
 ) -> float:
     """Env steps per second of ``SAC.learn`` after ``warmup`` steps (one gradient step
     per env step)."""
-    env, kwargs = make(env_id, residual, features)
+    env, kwargs = make(env_id, residual, features, tank)
     kwargs = {**kwargs, "learning_starts": warmup, "buffer_size": warmup + steps + 10}
     model = SAC(env=env, seed=seed, device="cpu", **kwargs)
     elapsed = timed_learn(model, warmup + 50, steps)
@@ -86,9 +100,11 @@ def sac_steps_per_s(
     return steps / elapsed
 
 
-def env_steps_per_s(env_id: str, residual: str, features: bool, steps: int, seed: int) -> float:
+def env_steps_per_s(
+    env_id: str, residual: str, features: bool, steps: int, seed: int, tank: bool = False
+) -> float:
     """Env steps per second under uniform random actions (resets included)."""
-    env, _ = make(env_id, residual, features)
+    env, _ = make(env_id, residual, features, tank)
     rng = np.random.default_rng(seed)
     env.reset(seed=seed)
     n = env.action_space.shape[0]
@@ -181,6 +197,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--env-steps", type=int, default=5000, help="random-action steps")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--learners", action="store_true", help="the learners' table instead")
+    parser.add_argument("--env-only", action="store_true", help="no SAC: the envs' rates only")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     if args.learners:
@@ -188,19 +205,25 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     variants = {
-        "pure": ("none", False),
-        f"residual ({args.base}), no features": (args.base, False),
-        f"residual ({args.base})": (args.base, True),
+        "pure": ("none", False, False),
+        f"residual ({args.base}), no features": (args.base, False, False),
+        f"residual ({args.base})": (args.base, True, False),
     }
+    if args.base in ("passivity", "passivity_paper"):  # the tank's bases
+        variants[f"residual ({args.base}), energy tank"] = (args.base, True, True)
     sac: dict[str, list[float]] = {k: [] for k in variants}
     raw: dict[str, list[float]] = {k: [] for k in variants}
     for r in range(args.repeats):
         order = list(variants) if r % 2 == 0 else list(reversed(variants))
         for label in order:
-            residual, features = variants[label]
-            raw[label].append(env_steps_per_s(args.env, residual, features, args.env_steps, r))
+            residual, features, tank = variants[label]
+            raw[label].append(
+                env_steps_per_s(args.env, residual, features, args.env_steps, r, tank)
+            )
             sac[label].append(
-                sac_steps_per_s(args.env, residual, features, args.steps, args.warmup, r)
+                math.nan
+                if args.env_only
+                else sac_steps_per_s(args.env, residual, features, args.steps, args.warmup, r, tank)
             )
             print(
                 f"# round {r}: {label}: env {raw[label][-1]:.0f} steps/s, "
@@ -211,6 +234,13 @@ def main(argv: list[str] | None = None) -> int:
     med_env = {k: statistics.median(v) for k, v in raw.items()}
     pure_sac, pure_env = med_sac["pure"], med_env["pure"]
     print(f"\n{args.env}, medians of {args.repeats} rounds:\n")
+    if args.env_only:
+        print("| variant | env only, random actions (steps/s) | extra env cost (µs/step) |")
+        print("|---|---:|---:|")
+        for label in variants:
+            extra_us = (1.0 / med_env[label] - 1.0 / pure_env) * 1e6
+            print(f"| {label} | {med_env[label]:.0f} | {extra_us:.0f} |")
+        return 0
     print(
         "| variant | env only, random actions (steps/s) | SAC training (steps/s) "
         "| SAC vs pure | extra env cost (µs/step) | extra env cost / pure SAC step |"
