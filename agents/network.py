@@ -155,7 +155,8 @@ def check_network_folder(model_dir: str | Path, robot: str | None = None) -> Non
     """Check that ``model_dir`` holds a pure policy a network base can run, before anything
     is built: ``model.zip``; and, when the folder has the ``config.yml`` of its training
     run, that it was a pure (``residual: none``) SB3 SAC run deciding every step, on
-    ``robot`` (when given), with its ``vecnormalize.pkl`` if it normalized observations.
+    ``robot`` (when given) and its ``-v0`` observation, with its ``vecnormalize.pkl`` if it
+    normalized observations.
 
     Raises:
         InvalidConfigError: naming the first mismatch.
@@ -178,6 +179,11 @@ def check_network_folder(model_dir: str | Path, robot: str | None = None) -> Non
                 f"base_model {str(model_dir)!r} must be a pure SB3 SAC policy deciding every "
                 f"step; its run has {key}={config.get(key)!r}"
             )
+    if str(config.get("env_id", "")).endswith("-v1"):
+        raise InvalidConfigError(
+            f"base_model {str(model_dir)!r} was trained on the preview observation "
+            f"({config['env_id']}): a network base sees the -v0 observation"
+        )
     if robot is not None and derived.get("robot") not in (None, robot):
         raise InvalidConfigError(
             f"base_model {str(model_dir)!r} was trained on {derived['robot']}, not {robot}"

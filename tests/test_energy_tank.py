@@ -262,3 +262,11 @@ def test_a_tank_residual_trains_and_is_evaluated_with_its_tank(tmp_path):
     ):
         with pytest.raises(TrainConfigError, match=match):
             validate(parse_args(argv(tmp_path / "bad", "--tank", *bad)))
+
+
+def test_a_tank_beta_without_a_tank_is_refused():
+    pytest.importorskip("stable_baselines3")
+    from train.rl.config import TrainConfigError, parse_args, validate
+
+    with pytest.raises(TrainConfigError, match="tank_beta needs tank"):
+        validate(parse_args(["--residual", "passivity", "--tank-beta", "0.7", "--out", "x"]))

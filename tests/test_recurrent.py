@@ -96,3 +96,30 @@ def test_a_recurrent_algorithm_is_refused_where_it_does_not_exist(tmp_path: Path
         validate(parse_args(argv(tmp_path / "y", "none", "--hp", "noise_type=normal")))
     with pytest.raises(TrainConfigError, match="critic_warmup_steps"):
         validate(parse_args(argv(tmp_path / "z", "passivity", "--critic-warmup-steps", "10")))
+
+
+def test_a_preview_id_takes_its_plain_ids_hyperparameters() -> None:
+    from train.rl.hyperparameters import load_hyperparams
+
+    for algo in ("sac", "ppo", "ppo_lstm"):
+        plain = load_hyperparams(algo, "ptrack_gym/IiwaTrack-v0", None, {})
+        assert load_hyperparams(algo, "ptrack_gym/IiwaTrack-v1", None, {}) == plain
+    # the iiwa's own section differs from the default, so the fallback is seen
+    assert plain["n_timesteps"] != load_hyperparams("ppo_lstm", ENV, None, {})["n_timesteps"]
+
+
+def test_a_preview_run_is_refused_as_a_network_base(trained: Path, tmp_path: Path) -> None:
+    import shutil
+
+    import yaml
+
+    from agents.network import check_network_folder
+    from ptrack_gym.errors import InvalidConfigError
+
+    pure = tmp_path / "pure"  # the run's files as a pure SAC run on the -v1 id
+    shutil.copytree(trained, pure)
+    saved = yaml.safe_load((pure / "config.yml").read_text())
+    saved["config"].update(residual="none", algo="sac")
+    (pure / "config.yml").write_text(yaml.safe_dump(saved))
+    with pytest.raises(InvalidConfigError, match="preview observation"):
+        check_network_folder(pure, "two_link")

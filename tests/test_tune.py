@@ -225,3 +225,17 @@ def test_episode_workers_reuse_envs_across_gains_and_keep_few(monkeypatch):
     assert not first.unwrapped.sim.connected  # the evicted env was closed
     for env in episode._ENV_CACHE.values():
         env.close()
+
+
+def test_a_study_folder_from_before_validation_design_resumes_only_as_crossed(tmp_path):
+    import yaml
+
+    out = tmp_path / "study"
+    tune(tiny(out, validation_paths=[9001, 9002]), progress=False)
+    saved = yaml.safe_load((out / "config.yml").read_text())
+    saved.pop("validation_design")  # as a folder written before the setting existed
+    (out / "config.yml").write_text(yaml.safe_dump(saved))
+    paired = tiny(out, validation_paths=[9001, 9002], validation_design="paired", trials=3)
+    with pytest.raises(InvalidConfigError, match="validation_design 'crossed' -> 'paired'"):
+        tune(paired, resume=True, progress=False)
+    tune(tiny(out, validation_paths=[9001, 9002], trials=3), resume=True, progress=False)

@@ -190,6 +190,8 @@ def test_bad_entrants_are_refused_before_any_episode(tmp_path, residual_run):
     name = f"sb3:{residual_run}"
     with pytest.raises(InvalidConfigError, match="not sb3:<run folder>"):
         tiny(tmp_path / "a", entrants={"two_link": ["pd_gravity"]}).validate()
+    with pytest.raises(InvalidConfigError, match="a list of distinct names"):
+        tiny(tmp_path / "a", entrants={"two_link": None}).validate()
     with pytest.raises(InvalidConfigError, match="not one of the robots"):
         tiny(tmp_path / "a", entrants={"iiwa": [name]}).validate()
     with pytest.raises(InvalidConfigError, match="is compared with pd_gravity, which is not"):

@@ -168,7 +168,12 @@ def _tune_parser(p: argparse.ArgumentParser) -> None:
     from train.studies.tune import TuneConfig
 
     add_config_arguments(p, TuneConfig)
-    _resume(p, "study")
+    p.add_argument("--resume", action="store_true", help="continue the studies in --out")
+    p.add_argument(
+        "--force", action="store_true",
+        help="start over in an --out that holds files; with --resume (and --save): continue "
+        "the studies and replace the shipped tuned gains",
+    )  # fmt: skip
     p.add_argument("--save", action="store_true", help="write agents/tuned/<robot>-<c>.yml")
     p.add_argument("--table", action="store_true", help="print the tuned gains and exit")
     _progress(p)

@@ -70,6 +70,7 @@ def open_run(
     force: bool = False,
     free: Collection[str] = (),
     saved_required: bool = True,
+    defaults: Mapping[str, Any] | None = None,
 ) -> RunFolder:
     """Open the run folder ``out`` for a job whose results go to ``out/results``.
 
@@ -84,6 +85,9 @@ def open_run(
             folder, a larger budget).
         saved_required: on resume over existing results, a missing ``config.yml`` is an
             error (it cannot be checked); ``False`` skips the check instead.
+        defaults: the value a setting had before the saved ``config.yml`` recorded it (a
+            run written before the setting existed ran with it); a setting neither records
+            nor defaults is not compared.
 
     Raises:
         InvalidConfigError: the folder holds any file and neither ``resume`` nor ``force``
@@ -108,7 +112,8 @@ def open_run(
     saved = out / CONFIG_FILE
     if existing:
         if saved.exists():
-            _check_same(yaml.safe_load(saved.read_text()) or {}, settings, free)
+            old = {**(defaults or {}), **(yaml.safe_load(saved.read_text()) or {})}
+            _check_same(old, settings, free)
         elif saved_required:
             raise InvalidConfigError(
                 f"{saved} is missing: cannot check that --resume continues the same run"

@@ -22,17 +22,10 @@ from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from ptrack_gym.errors import InvalidConfigError
+from train.common.algorithms import ALGO_NAMES, RECURRENT_ALGOS
 
-#: The algorithms ``--algo`` accepts in Stable-Baselines3 itself.
+#: The classes of Stable-Baselines3's own algorithms (``train.common.algorithms``).
 ALGOS: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "td3": TD3, "ppo": PPO}
-#: The recurrent ones, from sb3-contrib (the optional ``recurrent`` extra), by rl-zoo3's
-#: names: ``ppo_lstm`` is RecurrentPPO with an LSTM policy (``MlpLstmPolicy``), whose hidden
-#: state lets a policy infer what one observation cannot (a payload from a push).
-RECURRENT_ALGOS = {"ppo_lstm": "RecurrentPPO"}
-#: Every algorithm name ``--algo`` accepts.
-ALGO_NAMES = (*ALGOS, *RECURRENT_ALGOS)
-#: The on-policy algorithms (rollouts of ``n_steps`` per env, no replay buffer).
-ON_POLICY = ("ppo", "ppo_lstm")
 
 #: The learner implementations ``--backend`` accepts: Stable-Baselines3 itself (torch) and
 #: sbx, the SB3 team's JAX port of the same algorithms behind the same interface (the
@@ -172,13 +165,18 @@ class SB3Policy:
 
     A recurrent model (RecurrentPPO) keeps its hidden state here between calls when the
     caller passes none (the episode loop does not): ``episode_start`` true starts it over,
-    as SB3's ``evaluate_policy`` does. A caller that passes ``state`` keeps its own."""
+    as SB3's ``evaluate_policy`` does; a caller that does not say where episodes start
+    calls :meth:`reset` before each. A caller that passes ``state`` keeps its own."""
 
     def __init__(self, model: BaseAlgorithm, obs_stats: Any | None) -> None:
         self.model = model
         self.obs_stats = obs_stats
         self.recurrent = type(model).__name__ in RECURRENT_ALGOS.values()
         self._state: Any = None
+
+    def reset(self) -> None:
+        """Forget a recurrent model's hidden state: the next call starts an episode."""
+        self._state = None
 
     def predict(
         self,

@@ -32,6 +32,7 @@ from agents.residual import (
 )
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
+from train.common.algorithms import ALGO_NAMES, ON_POLICY, RECURRENT_ALGOS
 from train.common.arguments import (
     add_config_arguments,
     config_from_args,
@@ -43,7 +44,7 @@ from train.evaluation.envs import (
     env_kwargs,
     residual_wrapper_kwargs,
 )
-from train.evaluation.policies import ALGO_NAMES, BACKENDS, ON_POLICY, RECURRENT_ALGOS
+from train.evaluation.policies import BACKENDS
 from train.rl.checkpoints import (
     latest_checkpoint,
 )
@@ -83,7 +84,8 @@ class TrainConfig:
     safeguards that act on the torch actor (``zero_init_residual``, ``init_log_std``,
     ``critic_warmup_steps``, ``actor_lr_scale``, ``actor_bc_weight``) are sb3's only."""
     env_id: str = "ptrack_gym/TwoLinkTrack-v0"
-    """A ptrack_gym env id (``ptrack_gym.ENV_IDS``)."""
+    """A ptrack_gym env id (``ptrack_gym.ENV_IDS``), or its ``-v1`` (``PREVIEW_ENV_IDS``:
+    the reference ahead in the observation; hyperparameters from the ``-v0`` section)."""
     residual: str = "none"
     """"none" for pure RL, or the base controller of a residual policy (agents.registry)."""
     scale_fraction: float = 0.1
@@ -335,7 +337,9 @@ def validate(cfg: TrainConfig) -> Resolved:
         if residual_kwargs:
             own = ("base_gains", "prior_gain_per_rad", "base_model", "tank", "tank_beta")
             check_safeguards(**{k: v for k, v in residual_kwargs.items() if k not in own})
-            if cfg.tank or cfg.tank_beta != _FIELD_DEFAULTS["tank_beta"]:
+            if cfg.tank_beta != _FIELD_DEFAULTS["tank_beta"] and not cfg.tank:
+                raise TrainConfigError("tank_beta needs tank")
+            if cfg.tank:
                 ResidualSpec(base=cfg.residual, base_model=cfg.base_model, tank=cfg.tank,
                              tank_beta=cfg.tank_beta)  # fmt: skip
             check_prior(cfg.residual, cfg.prior_gain_per_rad)

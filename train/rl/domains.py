@@ -15,7 +15,7 @@ from typing import Any
 
 import torch
 
-from train.evaluation.policies import ON_POLICY
+from train.common.algorithms import ON_POLICY
 from train.rl.hyperparameters import TrainConfigError, hyperparameter_default
 
 #: The lowest value of each integer field (an optional one may also be None).

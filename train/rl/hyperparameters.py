@@ -24,7 +24,8 @@ from stable_baselines3.common.utils import LinearSchedule
 from torch import nn
 
 from ptrack_gym.errors import InvalidConfigError
-from train.evaluation.policies import ON_POLICY, RECURRENT_ALGOS, algo_class
+from train.common.algorithms import ON_POLICY, RECURRENT_ALGOS
+from train.evaluation.policies import algo_class
 
 #: The packaged hyperparameter files, ``<algo>.yml``.
 HYPERPARAMS_DIR = Path(__file__).resolve().parents[1] / "hyperparams"
@@ -129,16 +130,19 @@ def load_hyperparams(
     """The merged hyperparameters of a run (unvalidated, strings not yet parsed).
 
     Precedence, lowest first: ``<algo>.yml``'s ``default``, its ``<env_id>`` section,
-    then the same two sections of ``extra_file``, then ``overrides``.
+    then the same two sections of ``extra_file``, then ``overrides``. A ``-v1`` id (the
+    preview observation) without a section of its own takes its ``-v0`` id's: the same
+    robot and task.
     """
     merged: dict[str, Any] = {}
+    plain = env_id.removesuffix("-v1") + "-v0" if env_id.endswith("-v1") else env_id
     files = [HYPERPARAMS_DIR / f"{algo}.yml"]
     if extra_file is not None:
         files.append(Path(extra_file))
     for path in files:
         data = _read_yaml(path)
         merged.update(data.get("default", {}))
-        merged.update(data.get(env_id, {}))
+        merged.update(data.get(env_id, data.get(plain, {})))
     merged.update(overrides)
     return merged
 

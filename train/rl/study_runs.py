@@ -13,8 +13,8 @@ import yaml
 
 from agents.residual import NETWORK_BASE
 from ptrack_gym.errors import InvalidConfigError
+from train.common.algorithms import ON_POLICY
 from train.evaluation.config import EvalConfig
-from train.evaluation.policies import ON_POLICY
 
 #: Checkpoint file names of ``train.rl.run`` (SB3's CheckpointCallback).
 _CKPT = re.compile(r"rl_model_(\d+)_steps\.zip$")

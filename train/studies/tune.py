@@ -99,7 +99,10 @@ __all__ = [
     "tune",
     "tuned_table",
 ]
-#: Settings a resume may change: a larger budget, more seeds, more widenings.
+#: What a study folder written before these settings existed ran with.
+SETTING_DEFAULTS = {"validation_design": "crossed"}
+#: Settings a resume may change: a larger budget, more seeds, more widenings, the boxes the
+#: later seeds start in.
 FREE_FIELDS = (
     "trials",
     "trials_per_rate",
@@ -155,7 +158,7 @@ def tune(
     settings_dict = _settings(cfg)
     run = open_run(
         cfg.out, "optuna.journal", settings_dict, resume=resume, force=force and not resume,
-        free=FREE_FIELDS,
+        free=FREE_FIELDS, defaults=SETTING_DEFAULTS,
         saved_required=False,
     )  # fmt: skip
     out = run.out
@@ -219,7 +222,7 @@ def _refuse_one_seed_study(out: Path, resume: bool) -> None:
             raise InvalidConfigError(
                 f"{out} holds a study of the one-seed protocol (one study per controller, "
                 "effort tau_dyn_rms_frac): this version cannot resume it; tune into another "
-                "--out, or --force to start over"
+                "--out, or --force without --resume to start over"
             )
 
 

@@ -167,19 +167,21 @@ class SeedStudies:
                                          for k, (lo, hi, log) in box.items()}  # fmt: skip
 
     def _start_box(self, controller: str, seed: int) -> Box:
-        """The box round 0 of ``seed`` searches: the one it did (a resumed study); with
-        ``carry_boxes``, the box the previous study seed ended in (its widenings kept: a
-        bound found too tight is not found again by every seed); else the config's."""
+        """The box round 0 of ``seed`` searches: with ``carry_boxes``, the box the previous
+        study seed ended in (the last of its rounds 0 … ``max_widenings`` this config
+        runs: its widenings kept, so a bound found too tight is not found again by every
+        seed); else, and for the first seed, the config's. A resumed study that searched
+        another box is refused (:meth:`_round`)."""
         cfg = self.cfg
-        stored = self._stored_box(study_name(controller, seed, 0))
-        if stored is not None:
-            return stored
         seeds = list(cfg.study_seeds)
         if not cfg.carry_boxes or seeds.index(seed) == 0:
             return cfg.box(controller)
-        previous, box, r = seeds[seeds.index(seed) - 1], None, 0
-        while (found := self._stored_box(study_name(controller, previous, r))) is not None:
-            box, r = found, r + 1
+        previous, box = seeds[seeds.index(seed) - 1], None
+        for r in range((cfg.max_widenings if cfg.widen_on_bound else 0) + 1):
+            found = self._stored_box(study_name(controller, previous, r))
+            if found is None:
+                break
+            box = found
         return box or cfg.box(controller)
 
     def _feasible(self, trial: Any) -> bool:

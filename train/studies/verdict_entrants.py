@@ -13,7 +13,9 @@ passivity controller's verdict: that one compares the model-based laws.
 
 Refused before any episode: an entrant that is not ``sb3:``, a run of another robot, a run
 whose training or evaluation paths include a test path, a residual whose base ran with other
-gains than the verdict's, a reference that is not among the verdict's controllers.
+gains than the verdict's (a pure policy that imitated a controller: its expert's gains), a
+reference that is not among the verdict's controllers — which refuses a residual over a
+network base, whose reference is another run (``sb3:…``), not a controller.
 """
 
 from __future__ import annotations
@@ -65,7 +67,7 @@ def check_entrants(
     for robot, names in entrants.items():
         if robot not in robots:
             raise InvalidConfigError(f"entrants: {robot!r} is not one of the robots {robots}")
-        if isinstance(names, str) or len(set(names)) != len(names):
+        if not isinstance(names, list) or len(set(map(str, names))) != len(names):
             raise InvalidConfigError(
                 f"entrants of {robot}: a list of distinct names, got {names!r}"
             )
@@ -81,10 +83,16 @@ def check_entrants(
                     f"{name} trained or was evaluated on paths {shared}, test paths here: an "
                     "entrant is judged on paths it never saw"
                 )
-            if c["residual"] not in ("none", "network") and c.get("base_gains", "default") != gains:
+            if c["residual"] not in ("none", "network"):
+                own, what = c.get("base_gains", "default"), "base ran"
+            elif c["residual"] == "none" and c.get("imitate"):
+                own, what = c.get("imitate_gains", "default"), "expert ran"
+            else:
+                own, what = gains, ""
+            if own != gains:
                 raise InvalidConfigError(
-                    f"{name}'s base ran with {c.get('base_gains', 'default')} gains, the "
-                    f"verdict's controllers with {gains}: compare a residual with its own base"
+                    f"{name}'s {what} with {own} gains, the verdict's controllers with "
+                    f"{gains}: compare an entrant with the controller it was built on"
                 )
             reference = entrant_reference(name)
             if reference not in controllers:
