@@ -454,3 +454,12 @@ def test_a_study_needs_two_episodes_per_policy(tmp_path: Path) -> None:
                               "--episodes", "1"])  # fmt: skip
     assert exc.value.code == 2
     assert not (tmp_path / "o").exists()
+
+
+def test_the_curves_of_family_trained_runs_run_under_their_families() -> None:
+    from train.rl.study_runs import training_conditions
+
+    assert training_conditions({"disturbance": "impulse:1.0"}) == [("impulse", 1.0)]
+    assert training_conditions({"disturbance": "none"}) == []
+    families = {"disturbance": "none", "train_families": ["impulse:1.0", "payload", "noise:1"]}
+    assert training_conditions(families) == [("impulse", 1.0), ("payload", 1.0), ("noise", 1.0)]

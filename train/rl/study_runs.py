@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import dataclasses
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -225,17 +226,23 @@ def sweep_config(
 ) -> EvalConfig:
     """An evaluation sweep: the base controllers alone + the runs' checkpoints,
     ``episodes`` paired episodes each. ``presets=None``: every checkpoint, under the
-    training disturbance and undisturbed (the learning curves); else the final checkpoints
+    training disturbance (each training family: :func:`training_conditions`) and
+    undisturbed (the learning curves); else the final checkpoints
     (:func:`final_steps`) under ``presets`` at level 1."""
     first = runs[0].config
-    preset, _, level = str(first["disturbance"]).partition(":")
-    if preset in ("", "none"):
+    trained = training_conditions(first)
+    if not trained:
         raise InvalidConfigError("the study's runs were trained without a disturbance")
+    if len({lv for _, lv in trained}) > 1:
+        raise InvalidConfigError(
+            f"the runs trained under families at different levels {trained}: the curves "
+            "take one level for every preset"
+        )
     bases = sorted({reference_of(r) for r in runs if r.base != "none" or r.config.get("imitate")})
     baselines = list(dict.fromkeys([*bases, "computed_torque", PURE_REFERENCE]))
     if presets is None:
         entries = [f"sb3:{r.path}@{s}" for r in runs for s in r.checkpoints]
-        disturbances, levels = ["none", preset], [float(level) if level else 1.0]
+        disturbances, levels = ["none", *(p for p, _ in trained)], [trained[0][1]]
     else:
         steps = final_steps(runs)
         entries = [f"sb3:{r.path}@{steps}" for r in runs]
@@ -255,6 +262,18 @@ def sweep_config(
         out=str(out),
         plots=False,
     )
+
+
+def training_conditions(config: Mapping[str, Any]) -> list[tuple[str, float]]:
+    """(preset, level) of what a run trained under: its ``disturbance``, or each of its
+    ``train_families`` (a level not given is 1); [] for an undisturbed run."""
+    texts = list(config.get("train_families") or []) or [str(config.get("disturbance"))]
+    out = []
+    for text in texts:
+        preset, _, level = str(text).partition(":")
+        if preset not in ("", "none", "None"):
+            out.append((preset, float(level) if level else 1.0))
+    return out
 
 
 def final_steps(runs: Sequence[Run]) -> int:
