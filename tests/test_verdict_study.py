@@ -210,3 +210,27 @@ def test_bad_entrants_are_refused_before_any_episode(tmp_path, residual_run):
     with pytest.raises(InvalidConfigError, match=r"paths \[2\], test paths here"):
         run_verdict(tiny(tmp_path / "b", entrants={"two_link": [f"sb3:{seen}"]}), progress=False)
     assert not (tmp_path / "b" / "episodes.csv").exists()
+
+
+# -- Ray -------------------------------------------------------------------------------------
+def test_a_bad_backend_and_ray_without_its_extra_are_refused(tmp_path, monkeypatch):
+    import importlib.util
+
+    with pytest.raises(InvalidConfigError, match="backend must be 'process' or 'ray'"):
+        tiny(tmp_path / "v", backend="dask").validate()
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "ray" else real(name, *a)
+    )
+    with pytest.raises(InvalidConfigError, match="needs the optional 'ray' extra"):
+        tiny(tmp_path / "v", backend="ray").validate()
+
+
+@pytest.mark.slow  # Ray's start takes most of a minute: make test-slow
+def test_the_ray_backend_gives_the_rows_of_the_process_pool(tmp_path):
+    pytest.importorskip("ray")
+    pool = load_frame(run_verdict(tiny(tmp_path / "p", seeds=2), progress=False) / "episodes.csv")
+    ray_out = run_verdict(tiny(tmp_path / "r", seeds=2, backend="ray", workers=2), progress=False)
+    on_ray = load_frame(ray_out / "episodes.csv")
+    cols = [c for c in pool.columns if c != "wall_s"]
+    pd.testing.assert_frame_equal(pool[cols], on_ray[cols])

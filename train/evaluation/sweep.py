@@ -105,26 +105,11 @@ def _run_ray(
     address: str | None,
     example: set[Task],
 ) -> Iterator[tuple[dict[str, Any], Any, Task]]:
-    import ray  # validate() checked that the extra is installed
+    from train.common.ray_tasks import ray_results
 
-    started = not ray.is_initialized()
-    if started:
-        if address:
-            ray.init(address=address, include_dashboard=False, log_to_driver=False)
-        else:
-            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
-    remote = ray.remote(num_cpus=1)(run_episode)
-    refs = {remote.remote(t, settings, t in example): t for t in tasks}
-    try:
-        while refs:
-            done, _ = ray.wait(list(refs), num_returns=1)
-            for ref in done:
-                task = refs.pop(ref)
-                row, trace = ray.get(ref)
-                yield row, trace, task
-    finally:
-        if started:
-            ray.shutdown()
+    jobs = [(t, settings, t in example) for t in tasks]
+    for (task, _, _), (row, trace) in ray_results(run_episode, jobs, workers, address):
+        yield row, trace, task
 
 
 def run_sweep(

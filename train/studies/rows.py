@@ -22,14 +22,24 @@ def run_rows(
     path: Path,
     columns: Sequence[str],
     progress: bool = True,
+    backend: str = "process",
+    ray_address: str | None = None,
 ) -> None:
-    """``run_one(*task)`` for every task — in ``workers`` processes (0: the cores; 1: here) —
-    each row appended to ``path`` (``columns``) as it finishes, fsynced. An interrupt or a
-    failed episode cancels what has not started; every row written stays (``--resume``)."""
+    """``run_one(*task)`` for every task — in ``workers`` processes (0: the cores; 1: here),
+    or with ``backend="ray"`` as Ray tasks (:func:`train.common.ray_tasks.ray_results`; a
+    cluster at ``ray_address``) — each row appended to ``path`` (``columns``) as it
+    finishes, fsynced. An interrupt or a failed episode cancels what has not started; every
+    row written stays (``--resume``)."""
     writer = EpisodeWriter(path, columns)
     try:
         bar = tqdm(total=len(tasks), disable=not progress, desc="episodes")
-        if worker_count(workers) == 1:
+        if backend == "ray":
+            from train.common.ray_tasks import ray_results
+
+            for _, row in ray_results(run_one, tasks, worker_count(workers), ray_address):
+                writer.write(row)
+                bar.update()
+        elif worker_count(workers) == 1:
             for task in tasks:
                 writer.write(run_one(*task))
                 bar.update()

@@ -47,6 +47,7 @@ from train.common.checks import check_counts, check_known, check_lists, check_pa
 from train.common.paired_tests import TooFewPairsError
 from train.common.runs import open_run
 from train.common.statistics import hierarchical_bootstrap
+from train.evaluation.config import require_extra
 from train.evaluation.envs import check_env_kwargs, env_kwargs
 from train.evaluation.episode import EpisodeSettings, Task, run_episode
 from train.evaluation.results import read_episodes
@@ -109,6 +110,11 @@ class VerdictConfig:
     hierarchical bootstrap (at most 2 000 of those)."""
     workers: int = 0
     """Episode runners (0: the number of cores)."""
+    backend: str = "process"
+    """"process" (a pool of ``workers`` processes) or "ray" (Ray tasks: the ``ray`` extra)."""
+    ray_address: str | None = None
+    """With ``backend: ray``, the address of a running cluster; None: a local instance of
+    ``workers`` CPUs."""
     out: str = "results/verdict"
     """Output folder."""
 
@@ -130,6 +136,10 @@ class VerdictConfig:
             if isinstance(p, bool) or not isinstance(p, int):
                 raise InvalidConfigError(f"test_paths must be integer seeds, got {p!r}")
         check_counts(self, ("seeds", "resamples", "workers"))
+        if self.backend not in ("process", "ray"):
+            raise InvalidConfigError(f"backend must be 'process' or 'ray', got {self.backend!r}")
+        if self.backend == "ray":
+            require_extra("ray", "ray", "backend: ray")
         for name in ("episode_s", "control_hz", "failure_distance_rad"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -223,7 +233,11 @@ def run_verdict(
 ) -> Path:
     """Run (or resume) the study of ``cfg``, then write its report; return the folder."""
     cfg.validate()
-    settings = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("workers", "out")}
+    settings = {
+        k: v
+        for k, v in dataclasses.asdict(cfg).items()
+        if k not in ("workers", "out", "backend", "ray_address")
+    }
     run = open_run(cfg.out, "episodes.csv", settings, resume=resume, force=force,
                    free=("resamples",))  # fmt: skip
     out, episodes = run.out, run.results
@@ -231,7 +245,8 @@ def run_verdict(
         tuple(r[k] for k in KEY_COLUMNS) for r in read_episodes(episodes, COLUMNS, KEY_COLUMNS)
     }
     todo = [t for t in cfg.tasks() if _key_text(*t) not in finished]
-    run_rows(run_one, [(cfg, *t) for t in todo], cfg.workers, episodes, COLUMNS, progress)
+    run_rows(run_one, [(cfg, *t) for t in todo], cfg.workers, episodes, COLUMNS, progress,
+             cfg.backend, cfg.ray_address)  # fmt: skip
     write_report(cfg, out)
     return out
 
