@@ -447,5 +447,33 @@ def test_a_later_seed_starts_in_the_box_the_seed_before_it_ended_in(tmp_path):
     # a resume reads each seed's own box back, whatever the config's box says
     again = tune(fight(tmp_path / "carry", **kw), resume=True, progress=False, objective=bowl)
     assert again["computed_torque"]["seeds"][1] == seeds[1]
+    # more widenings later: seed 0 widens again, seed 1 keeps the box it started in
+    wider = Bowl(omega=2000.0, zeta=1.0)
+    more = tune(fight(tmp_path / "carry", **{**kw, "max_widenings": 3}), resume=True,
+                progress=False, objective=wider)["computed_torque"]  # fmt: skip
+    assert more["seeds"][1]["box"]["omega"] == [3.0, 900.0, True]
+    # a search box changed in the code since (not in config.yml) is refused on resume
+    from train.studies.tune_config import TuneConfig as Config
+
+    real = Config.box
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(Config, "box", lambda self, c: {**real(self, c), "omega": (5.0, 100.0, True)})
+        with pytest.raises(InvalidConfigError, match="searched"):
+            tune(fight(tmp_path / "carry", **kw), resume=True, progress=False, objective=bowl)
     alone = tune(fight(tmp_path / "own", carry_boxes=False, **kw), progress=False, objective=bowl)
     assert alone["computed_torque"]["seeds"][1]["widenings"] == 2
+
+
+def test_the_status_of_a_fight_lists_its_studies_best_and_bounds(tmp_path):
+    from train.studies.tune_fight import journal_status
+
+    assert "no journal yet" in journal_status(tmp_path / "none")
+    bowl = Bowl(omega=300.0, zeta=1.0)
+    tune(fight(tmp_path, study_seeds=[0], trials=25, startup_trials=8, widen_on_bound=True,
+               max_widenings=1), progress=False, objective=bowl)  # fmt: skip
+    text = journal_status(tmp_path)
+    rows = {line.split(" | ")[0].strip("| "): line for line in text.splitlines()[2:]}
+    assert set(rows) == {"computed_torque.seed0", "computed_torque.seed0.widen1"}
+    assert "| 25 |" in rows["computed_torque.seed0.widen1"]  # new trials, copies apart
+    assert "omega [3, 300]" in rows["computed_torque.seed0.widen1"]
+    assert rows["computed_torque.seed0.widen1"].endswith("| omega high |")  # ω* = 300: on it

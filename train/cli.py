@@ -176,6 +176,10 @@ def _tune_parser(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     p.add_argument("--save", action="store_true", help="write agents/tuned/<robot>-<c>.yml")
     p.add_argument("--table", action="store_true", help="print the tuned gains and exit")
+    p.add_argument(
+        "--status", action="store_true",
+        help="print where the fight in --out stands (its studies, trials, best so far) and exit",
+    )  # fmt: skip
     _progress(p)
 
 
@@ -185,6 +189,11 @@ def _tune(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
 
     if args.table:
         print(tuned_table())
+        return 0
+    if args.status:
+        from train.studies.tune_fight import journal_status
+
+        print(journal_status(Path(config_from_args(TuneConfig, args).out)))
         return 0
     cfg = _config(TuneConfig, args, "tune")
     save = TUNED_DIR if args.save else None

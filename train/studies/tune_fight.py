@@ -178,3 +178,47 @@ def tuned_table(tuned_dir: Path = TUNED_DIR) -> str:
     for robot, objectives in robots.items():
         lines += ["", f"{robot}: {stability_line(objectives)}"]
     return "\n".join(lines)
+
+
+def journal_status(out: Path, budget: float | None = None) -> str:
+    """Markdown: every study of the fight in ``out`` (its ``optuna.journal``, read without
+    running anything) — the new trials done, the box searched, the best trial within
+    ``budget`` (the effort constraint as recorded, when None) with its rates, and the rates
+    of that trial on a bound of the box (5 %): where a running fight stands (``ptrack tune
+    --status``)."""
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    from train.common.runs import has_results
+
+    path = out / "optuna.journal"
+    if not has_results(path):
+        return f"{out}: no journal yet"
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    storage = JournalStorage(JournalFileBackend(str(path)))
+    lines = [
+        "| study | new trials | box | best (rad) | its rates | on bound |",
+        "|---|---:|---|---:|---|---|",
+    ]
+    for summary in sorted(optuna.get_all_study_summaries(storage), key=lambda s: s.study_name):
+        study = optuna.load_study(study_name=summary.study_name, storage=storage)
+        done = [t for t in study.get_trials(deepcopy=False)
+                if t.state == optuna.trial.TrialState.COMPLETE]  # fmt: skip
+        new = sum("copied_from" not in t.user_attrs for t in done)
+        feasible = [
+            t for t in done
+            if (t.user_attrs["effort"] <= budget if budget is not None
+                else all(c <= 0 for c in dict(t.constraints or {}).values()))
+        ]  # fmt: skip
+        box = {k: (lo, hi, log) for k, (lo, hi, log) in study.user_attrs.get("box", {}).items()}
+        box_text_ = ", ".join(f"{k} [{lo:g}, {hi:g}]" for k, (lo, hi, _) in box.items())
+        if feasible:
+            best = min(feasible, key=lambda t: t.value)
+            rates = ", ".join(f"{k} {v:.3g}" for k, v in best.params.items())
+            bound = ", ".join(f"{k} {side}" for k, side in bounds_hit(best.params, box).items())
+            lines.append(f"| {summary.study_name} | {new} | {box_text_} | {best.value:.4g} "
+                         f"| {rates} | {bound or '–'} |")  # fmt: skip
+        else:
+            lines.append(f"| {summary.study_name} | {new} | {box_text_} | – | – | – |")
+    return "\n".join(lines)

@@ -170,19 +170,38 @@ class SeedStudies:
         """The box round 0 of ``seed`` searches: with ``carry_boxes``, the box the previous
         study seed ended in (the last of its rounds 0 … ``max_widenings`` this config
         runs: its widenings kept, so a bound found too tight is not found again by every
-        seed); else, and for the first seed, the config's. A resumed study that searched
-        another box is refused (:meth:`_round`)."""
+        seed), or, resumed, the box it started in — which must hold the config's box (a
+        carried box only ever grows; a later ``max_widenings`` may have widened the seed
+        before it since); else, and for the first seed, the config's box, which a resumed
+        study must have searched (:meth:`_round`).
+
+        Raises:
+            InvalidConfigError: a resumed carried study whose box does not hold the config's.
+        """
         cfg = self.cfg
+        first = cfg.box(controller)
         seeds = list(cfg.study_seeds)
         if not cfg.carry_boxes or seeds.index(seed) == 0:
-            return cfg.box(controller)
+            return first
+        stored = self._stored_box(study_name(controller, seed, 0))
+        if stored is not None:
+            if set(stored) != set(first) or any(
+                stored[k][0] > lo or stored[k][1] < hi or stored[k][2] != log
+                for k, (lo, hi, log) in first.items()
+            ):
+                raise InvalidConfigError(
+                    f"study {study_name(controller, seed, 0)} searched {box_text(stored)}, "
+                    f"which does not hold this run's box {box_text(first)}: tune into "
+                    "another --out"
+                )
+            return stored
         previous, box = seeds[seeds.index(seed) - 1], None
         for r in range((cfg.max_widenings if cfg.widen_on_bound else 0) + 1):
             found = self._stored_box(study_name(controller, previous, r))
             if found is None:
                 break
             box = found
-        return box or cfg.box(controller)
+        return box or first
 
     def _feasible(self, trial: Any) -> bool:
         return bool(trial.user_attrs["effort"] <= self.budget)
