@@ -179,7 +179,9 @@ def test_an_entrant_is_judged_on_the_test_paths_against_its_base(tmp_path, resid
     assert (entrants["pairs"] == 2 * 2).all()  # (path, seed) pairs
     rivals = pd.read_csv(out / "rivals.csv")
     assert name not in set(rivals["rival"])  # not a rival of the passivity controller
-    assert "## Learned entrants on the test paths" in (out / "verdict.md").read_text()
+    text = (out / "verdict.md").read_text()
+    assert "## Learned entrants on the test paths" in text
+    assert f"| two_link | {name} | sac | 100 | the default path | periodic:1.0 | ±0 |" in text
 
 
 def test_bad_entrants_are_refused_before_any_episode(tmp_path, residual_run):

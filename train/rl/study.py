@@ -1,13 +1,14 @@
 """Learning curves and final figures of a multi-seed RL study, from its checkpoints.
 
 A *study* is a folder of ``ptrack train`` runs (``ptrack campaign``
-trains one) that share env, algorithm, training disturbance, control rate, episode length
-and start mode, and differ in seed and in their *group* — the campaign's group name when
-the folder is named ``<group>_s<seed>``, else pure RL or a residual on a base controller
-(``residual-<base>``, ``-gated`` with a path-error gate) —, each group with its own reward
-and safeguards (the same within a group). This script evaluates **every checkpoint of
-every run** and the base controllers alone (every group's base, computed torque and
-PD + gravity) through one ``train.evaluation.config`` sweep (``sb3:<run>@<steps>`` entries), so
+trains one) that share env, training disturbance, control rate, episode length and start
+mode, and differ in seed and in their *group* — the campaign's group name when the folder
+is named ``<group>_s<seed>``, else pure RL or a residual on a base controller
+(``residual-<base>``, ``-gated`` with a path-error gate) —, each group with its own
+algorithm, reward and safeguards (the same within a group). This script evaluates
+**every checkpoint of every run** and the base controllers alone (every group's base,
+computed torque and PD + gravity) through one ``train.evaluation.config`` sweep
+(``sb3:<run>@<steps>`` entries), so
 every policy meets the same start states and the same disturbance schedules, under the
 training disturbance and undisturbed; then the **final checkpoints** under every preset
 of ``--presets`` at level 1 in a second sweep (``final/``). It then writes:

@@ -96,7 +96,6 @@ def final_table(df: pd.DataFrame, runs: Sequence[Run], resamples: int) -> str:
     test — the tests are the study's ``report.md``, ``train.common.paired_tests``), and ×ref
     the ratio of the pooled means."""
     steps = final_steps(runs)
-    algo = str(runs[0].config["algo"]).upper()
     lines = [
         "| disturbance | policy | path-dist RMS per seed (rad) | pooled mean (rad) | "
         "Δ vs reference alone, 95% CI (unadjusted, not a test) | ×ref | time-indexed RMSE (rad) "
@@ -118,6 +117,7 @@ def final_table(df: pd.DataFrame, runs: Sequence[Run], resamples: int) -> str:
         for group in sorted({r.group for r in runs}):
             members = sorted((r for r in runs if r.group == group), key=lambda r: r.seed)
             ref_name = reference_of(members[0])
+            algo = str(members[0].config.get("algo", "sac")).upper()  # the group's learner
             ref = alone[ref_name]["path_dist_rms"]
             per_seed, diffs, time_err, fails, mine = [], [], [], 0, []
             for r in members:

@@ -128,6 +128,26 @@ def entrant_comparisons(
     return out[["robot", "reference", *[c for c in out.columns if c not in ("robot", "reference")]]]
 
 
+def protocol_markdown(entrants: Mapping[str, Sequence[str]]) -> str:
+    """Markdown: what each entrant trained on — algorithm, steps, paths, disturbance
+    families, mass randomisation — (issue 39's protocol, in the report that judges it)."""
+    lines = [
+        "| robot | entrant | algorithm | steps | trained on paths | trained under "
+        "| randomized masses |",
+        "|---|---|---|---:|---|---|---:|",
+    ]
+    for robot, names in entrants.items():
+        for name in names:
+            c = _run_config(name)
+            lines.append(
+                f"| {robot} | {name} | {c.get('algo', 'sac')} | {c.get('steps')} "
+                f"| {c.get('train_paths') or 'the default path'} "
+                f"| {c.get('train_families') or c.get('disturbance', 'none')} "
+                f"| ±{float(c.get('randomize_mass', 0.0)):g} |"
+            )
+    return "\n".join(lines)
+
+
 def entrants_markdown(table: pd.DataFrame) -> str:
     """Markdown: per robot, each entrant against its reference in every condition, both
     metrics (ratio of means, Holm-adjusted p, mark)."""

@@ -383,7 +383,11 @@ def write_report(cfg: VerdictConfig, out: Path) -> None:
         )
         lines += ["", ranking_table(sub, BOTH_METRICS)]
     if cfg.entrants:
-        from train.studies.verdict_entrants import entrant_comparisons, entrants_markdown
+        from train.studies.verdict_entrants import (
+            entrant_comparisons,
+            entrants_markdown,
+            protocol_markdown,
+        )
 
         entrants = entrant_comparisons(cfg.entrants, df, cfg.resamples)
         entrants.to_csv(out / "entrants.csv", index=False, float_format="%.6g")
@@ -392,6 +396,8 @@ def write_report(cfg: VerdictConfig, out: Path) -> None:
             "Each against its reference (a residual's base, else PD + gravity or the "
             "controller it imitated): exact paired sign-flip tests over the (path, seed) "
             "pairs, Holm over one robot, metric and reference; `entrants.csv`.", "",
-            entrants_markdown(entrants),
+            entrants_markdown(entrants), "", "What each entrant trained on (the test paths "
+            "above are none of its training or evaluation paths):", "",
+            protocol_markdown(cfg.entrants),
         ]  # fmt: skip
     (out / "verdict.md").write_text("\n".join(lines) + "\n")
