@@ -172,3 +172,32 @@ def test_sigterm_to_the_campaign_stops_its_workers_and_each_run_saves(tmp_path: 
     assert (run_dir / "model.zip").exists() and 0 < steps < 1_000_000
     again = plan(load_campaign(study, out)[0])
     assert again is not None and again.resume and again.steps == 1_000_000 - steps
+
+
+def test_a_ray_backend_without_its_extra_is_a_usage_error(tmp_path: Path, monkeypatch) -> None:
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "ray" else real(name, *a)
+    )
+    with pytest.raises(SystemExit) as exc:
+        main(["--config", str(write(tmp_path, TINY)), "--out", str(tmp_path / "o"),
+              "--backend", "ray"])  # fmt: skip
+    assert exc.value.code == 2 and not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow  # Ray's start takes most of a minute: make test-slow
+def test_a_campaign_on_ray_trains_the_runs_the_process_pool_does(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    import torch
+    from stable_baselines3 import SAC
+
+    one = {**TINY, "seeds": [0], "groups": {"pure": TINY["groups"]["pure"]}}
+    study = write(tmp_path, one)
+    assert main(["--config", str(study), "--out", str(tmp_path / "p"), "--workers", "1"]) == 0
+    assert main(["--config", str(study), "--out", str(tmp_path / "r"), "--workers", "1",
+                 "--backend", "ray"]) == 0  # fmt: skip
+    a = SAC.load(tmp_path / "p" / "pure_s0" / "model.zip", device="cpu").policy.state_dict()
+    b = SAC.load(tmp_path / "r" / "pure_s0" / "model.zip", device="cpu").policy.state_dict()
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)

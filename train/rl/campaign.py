@@ -22,7 +22,10 @@ Usage::
     ptrack campaign --config train/configs/campaign/rl_study_two_link.yml \\
         --out runs/rl_study_two_link --workers 2
 
-Then ``ptrack study --runs <out> ...`` evaluates the checkpoints.
+``--backend ray`` (the ``ray`` extra) runs them as one-CPU Ray tasks instead — on a local
+instance of ``--workers`` CPUs, or on the cluster at ``--ray-address`` — with the same
+skipping and resuming (the same models: tested). Then ``ptrack study --runs <out> ...``
+evaluates the checkpoints.
 """
 
 from __future__ import annotations
@@ -30,13 +33,14 @@ from __future__ import annotations
 import argparse
 import multiprocessing as mp
 import traceback
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from ptrack_gym.errors import InvalidConfigError
 from train.rl.checkpoints import latest_checkpoint
 from train.rl.config import TrainConfig, validate
 from train.rl.hyperparameters import TrainConfigError
@@ -125,12 +129,40 @@ def _train_one(cfg: TrainConfig) -> tuple[str, str | None]:
     return cfg.out, None
 
 
+def _results(
+    todo: Sequence[TrainConfig], workers: int, backend: str, address: str | None, ctx: Any
+) -> Iterator[tuple[str, str | None]]:
+    """(run folder, error or None) of every run, as each finishes: in a pool of ``workers``
+    spawned processes (one run each), or as one-CPU Ray tasks (a cluster at ``address``,
+    else a local instance of ``workers`` CPUs)."""
+    if backend == "ray":
+        from train.common.ray_tasks import ray_results
+
+        for _, result in ray_results(_train_one, [(c,) for c in todo], workers, address):
+            yield result
+        return
+    with ctx.Pool(max(1, workers), maxtasksperchild=1) as pool:
+        yield from pool.imap_unordered(_train_one, todo)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="ptrack campaign", description=__doc__.split("\n\n")[0])
     p.add_argument("--config", type=Path, required=True)
     p.add_argument("--out", type=Path, help="the runs' folder (default: runs/<config name>)")
     p.add_argument("--workers", type=int, default=2)
+    p.add_argument(
+        "--backend", choices=("process", "ray"), default="process",
+        help="a pool of --workers processes, or Ray tasks (the 'ray' extra; one CPU each)",
+    )  # fmt: skip
+    p.add_argument("--ray-address", help="with --backend ray: a running cluster's address")
     args = p.parse_args(argv)
+    if args.backend == "ray":
+        from train.evaluation.config import require_extra
+
+        try:
+            require_extra("ray", "ray", "--backend ray")
+        except InvalidConfigError as exc:
+            p.error(str(exc))
     if args.out is None:
         args.out = Path("runs") / args.config.stem
     validate_campaign(args.config)  # every run checked before the first starts
@@ -144,8 +176,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     # train on, orphaned.
     interrupted = False
     try:
-        with sigterm_as_interrupt(), ctx.Pool(max(1, args.workers), maxtasksperchild=1) as pool:
-            for out, error in pool.imap_unordered(_train_one, todo):
+        with sigterm_as_interrupt():
+            for out, error in _results(todo, args.workers, args.backend, args.ray_address, ctx):
                 print(f"{'FAILED' if error else 'done'}: {out}", flush=True)
                 if error:
                     failed.append((out, error))
