@@ -173,6 +173,9 @@ def test_the_winner_is_the_best_seed_and_the_spread_is_max_minus_min_over_median
     assert best["seed"] == 1 and best["rates"]["omega"] == 20.0 and best["error_rad"] == 1e-3
     assert best["spread"] == pytest.approx((2e-3 - 1e-3) / 1.5e-3)
     assert best["trials"] == 20 and best["feasible_trials"] == 14 and best["seeds"][2] is None
+    # the budget in env steps: 20 trials x the default config's 3 seeds x 5 presets x 6-s
+    # episodes at 1 kHz (one path)
+    assert best["env_steps"] == 20 * (3 * 5) * 6000
     with pytest.raises(InvalidConfigError, match="no trial met the effort budget"):
         winner(cfg, "computed_torque", {0: None}, 0.3)
 

@@ -198,6 +198,12 @@ class TuneConfig:
             out += [(t, settings) for t in self.tasks(controller, only)]
         return out
 
+    def trial_env_steps(self, controller: str) -> int:
+        """Control steps one trial of ``controller`` runs: its validation episodes × the
+        steps of an episode."""
+        steps = max(1, round(self.episode_s * self.control_hz))
+        return len(self.episodes(controller, "default")) * steps
+
     def box(self, controller: str) -> Box:
         """The box ``controller``'s rates are first searched in (TUNABLE's, with ``boxes``)."""
         return resolve_box(controller, self.boxes.get(controller))

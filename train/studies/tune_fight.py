@@ -114,15 +114,17 @@ def fight_markdown(results: Mapping[str, Mapping[str, Any]], title: str) -> str:
         "Objective: geometric mean path-distance RMS (rad) on the validation episodes; the "
         "best feasible trial over all study seeds wins (train/studies/tune.py).",
         "",
-        f"| controller | best (rad) | {head} | spread | trials | effort (budget) | on bound |",
-        "|---|---:|" + "---:|" * len(seeds) + "---:|---:|---|---|",
+        f"| controller | best (rad) | {head} | spread | trials | env steps | effort (budget) "
+        "| on bound |",
+        "|---|---:|" + "---:|" * len(seeds) + "---:|---:|---:|---|---|",
     ]
     for c, res in results.items():
         cells = " | ".join(f"{objectives[c][s]:.3g}" if s in objectives[c] else "–" for s in seeds)
         bound = ", ".join(f"{k} ({v})" for k, v in (res.get("on_bound_why") or {}).items()) or "–"
         lines.append(
             f"| {c} | {res['error_rad']:.3g} | {cells} | {res['spread']:.2f} | {res['trials']} "
-            f"| {res['effort']:.4f} ({res['effort_budget']:.4f}) | {bound} |"
+            f"| {res.get('env_steps', '–')} | {res['effort']:.4f} ({res['effort_budget']:.4f}) "
+            f"| {bound} |"
         )
     lines += ["", "Rankings (best first):", ""]
     for s, ranked in seed_rankings(objectives).items():

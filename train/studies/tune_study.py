@@ -360,6 +360,10 @@ def winner(
         "trial": w["trial"],
         "trials_per_study": cfg.study_trials(controller),
         "trials": sum(r["trials"] for r in found.values()),
+        # what the fight spent on this controller, in the units of an RL budget: every new
+        # trial of every seed ran the validation episodes (the copies into a widening ran
+        # nothing new)
+        "env_steps": sum(r["trials"] for r in found.values()) * cfg.trial_env_steps(controller),
         "feasible_trials": sum(r["feasible_trials"] for r in found.values()),
         "effort_metric": cfg.effort_metric,
         "effort_budget": float(budget),
