@@ -92,6 +92,7 @@ def test_study_writes_curves_figure_and_final_table(study: Path, tmp_path: Path)
     protocol = table.split("## Final checkpoints")[0]
     rows = [ln for ln in protocol.splitlines() if ln.startswith("| pure |")]
     assert len(rows) == 1 and "the default path" in rows[0], protocol
+    assert rows[0].startswith("| pure | 2 | sac | 200 | – |"), rows  # no tuned base
     assert "This study evaluates them on: path default, presets noise, none, periodic" in table
     # the curve value at the last checkpoint is the final table's per-seed figure
     last = curves[(curves["group"] == "residual-passivity") & (curves["steps"] == 200)]
@@ -463,3 +464,15 @@ def test_the_curves_of_family_trained_runs_run_under_their_families() -> None:
     assert training_conditions({"disturbance": "none"}) == []
     families = {"disturbance": "none", "train_families": ["impulse:1.0", "payload", "noise:1"]}
     assert training_conditions(families) == [("impulse", 1.0), ("payload", 1.0), ("noise", 1.0)]
+
+
+def test_the_tuning_budget_of_a_base_is_read_from_its_tuned_file(tmp_path, monkeypatch) -> None:
+    import agents.registry as registry
+    from train.rl.study_tables import tuning_env_steps
+
+    monkeypatch.setattr(registry, "TUNED_DIR", tmp_path)
+    (tmp_path / "two_link-passivity.yml").write_text("rates: {}\nstudy: {env_steps: 1234}\n")
+    (tmp_path / "two_link-pd_gravity.yml").write_text("rates: {}\nstudy: {seed: 0}\n")
+    assert tuning_env_steps("two_link", "passivity") == 1234
+    assert tuning_env_steps("two_link", "pd_gravity") is None  # an older protocol's file
+    assert tuning_env_steps("two_link", "slotine_li") is None  # no file

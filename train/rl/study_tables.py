@@ -58,14 +58,32 @@ def training_curves(runs: Sequence[Run], window: int = 10) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["group", "seed", "steps", "reward_per_step"])
 
 
+def tuning_env_steps(robot: str, controller: str) -> int | None:
+    """The env steps the tuning fight spent on ``controller`` of ``robot`` (its tuned file's
+    ``study.env_steps``); None without a file, or for a file of an older protocol."""
+    import yaml
+
+    from agents.registry import TUNED_DIR
+
+    path = TUNED_DIR / f"{robot}-{controller}.yml"
+    if not path.exists():
+        return None
+    steps = ((yaml.safe_load(path.read_text()) or {}).get("study") or {}).get("env_steps")
+    return None if steps is None else int(steps)
+
+
 def protocol_table(runs: Sequence[Run], test: str) -> str:
     """Markdown: per group, what its runs trained on — paths, disturbance families, the
-    plant's randomisation — and ``test``, what the study evaluates them on (the
-    generalization protocol, issue 39; a run predating a field trained without it)."""
+    plant's randomisation, the env steps of a run beside those the tuning fight spent on
+    its base (a residual with tuned base gains) — and ``test``, what the study evaluates
+    them on (the generalization protocol, issue 39; a run predating a field trained
+    without it)."""
+    from ptrack_gym.robots import profile_for_env_id
+
     lines = [
-        "| group | seeds | trained on paths | trained under | randomized masses | "
-        "evaluated during training on |",
-        "| --- | ---: | --- | --- | ---: | --- |",
+        "| group | seeds | algorithm | env steps a run | tuning of its base (env steps) "
+        "| trained on paths | trained under | randomized masses | evaluated during training on |",
+        "| --- | ---: | --- | ---: | ---: | --- | --- | ---: | --- |",
     ]
     for group in sorted({r.group for r in runs}):
         members = [r for r in runs if r.group == group]
@@ -78,8 +96,14 @@ def protocol_table(runs: Sequence[Run], test: str) -> str:
                 f"families {c['eval_families']}" if c.get("eval_families") else "",
             ) if x
         ) or "the training distribution"  # fmt: skip
+        tuned = None
+        if c.get("residual") not in (None, "none", "network") and c.get("base_gains") == "tuned":
+            tuned = tuning_env_steps(profile_for_env_id(c["env_id"]).name, c["residual"])
+        budget = max(max(r.checkpoints, default=0) for r in members)  # its last checkpoint
         lines.append(
-            f"| {group} | {len(members)} | {paths if paths else 'the default path'} | "
+            f"| {group} | {len(members)} | {c.get('algo', 'sac')} | {budget} "
+            f"| {tuned if tuned is not None else '–'} "
+            f"| {paths if paths else 'the default path'} | "
             f"{families if families else c.get('disturbance', 'none')} | "
             f"±{float(c.get('randomize_mass', 0.0)):g} | {eval_on} |"
         )
