@@ -176,6 +176,9 @@ def test_the_winner_is_the_best_seed_and_the_spread_is_max_minus_min_over_median
     # the budget in env steps: 20 trials x the default config's 3 seeds x 5 presets x 6-s
     # episodes at 1 kHz (one path)
     assert best["env_steps"] == 20 * (3 * 5) * 6000
+    # the trials of a seed without a feasible one were spent too
+    spent = winner(cfg, "computed_torque", {0: seed(2e-3, 10.0), 2: None}, 0.3, spent=25)
+    assert spent["trials"] == 25 and spent["env_steps"] == 25 * (3 * 5) * 6000
     with pytest.raises(InvalidConfigError, match="no trial met the effort budget"):
         winner(cfg, "computed_torque", {0: None}, 0.3)
 

@@ -236,3 +236,10 @@ def test_the_ray_backend_gives_the_rows_of_the_process_pool(tmp_path):
     on_ray = load_frame(ray_out / "episodes.csv")
     cols = [c for c in pool.columns if c != "wall_s"]
     pd.testing.assert_frame_equal(pool[cols], on_ray[cols])
+
+
+def test_no_task_starts_no_ray():
+    from train.common.ray_tasks import ray_results
+
+    ray = pytest.importorskip("ray")
+    assert list(ray_results(print, [], 2)) == [] and not ray.is_initialized()

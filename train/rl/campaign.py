@@ -156,6 +156,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     )  # fmt: skip
     p.add_argument("--ray-address", help="with --backend ray: a running cluster's address")
     args = p.parse_args(argv)
+    if args.workers < 1:
+        p.error(f"--workers must be >= 1, got {args.workers}")
     if args.backend == "ray":
         from train.evaluation.config import require_extra
 

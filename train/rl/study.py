@@ -55,6 +55,7 @@ from train.rl.study_runs import (
     reference_of,
     sweep_config,
     thin,
+    training_conditions,
 )
 from train.rl.study_tables import (
     aggregate_frame,
@@ -144,7 +145,8 @@ def run_study(
         for dist, gd in df.groupby("disturbance")
     }
     plot_curves(curves, training_curves(runs), baselines, out / "learning_curves.png")
-    train_dist = str(runs[0].config["disturbance"]).partition(":")[0]
+    # the training disturbance (of runs trained on families: the first family)
+    train_dist = training_conditions(runs[0].config)[0][0]
     resamples = sweep_cfg.bootstrap_resamples
     agg = aggregate(aggregate_frame(final, runs), "path_dist_rms", out, resamples, seed=0)
     test = (

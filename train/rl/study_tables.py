@@ -60,7 +60,8 @@ def training_curves(runs: Sequence[Run], window: int = 10) -> pd.DataFrame:
 
 def tuning_env_steps(robot: str, controller: str) -> int | None:
     """The env steps the tuning fight spent on ``controller`` of ``robot`` (its tuned file's
-    ``study.env_steps``); None without a file, or for a file of an older protocol."""
+    ``study.env_steps``, as the file stands now: a later fight's file replaces the one a
+    run trained with); None without a file, or for a file of an older protocol."""
     import yaml
 
     from agents.registry import TUNED_DIR
@@ -99,7 +100,9 @@ def protocol_table(runs: Sequence[Run], test: str) -> str:
         tuned = None
         if c.get("residual") not in (None, "none", "network") and c.get("base_gains") == "tuned":
             tuned = tuning_env_steps(profile_for_env_id(c["env_id"]).name, c["residual"])
-        budget = max(max(r.checkpoints, default=0) for r in members)  # its last checkpoint
+        # its last checkpoint, in env steps (checkpoints count decisions)
+        budget = max(max(r.checkpoints, default=0) for r in members)
+        budget *= int(c.get("decision_every", 1))
         lines.append(
             f"| {group} | {len(members)} | {c.get('algo', 'sac')} | {budget} "
             f"| {tuned if tuned is not None else '–'} "

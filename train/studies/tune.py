@@ -186,7 +186,8 @@ def tune(
         study = SeedStudies(optuna, storage, objective, cfg, budget, progress)
         for controller in cfg.controllers:
             seeds = {seed: study.seed_result(controller, seed) for seed in cfg.study_seeds}
-            best = winner(cfg, controller, seeds, budget)
+            spent = sum(study.spent_trials(controller, seed) for seed in cfg.study_seeds)
+            best = winner(cfg, controller, seeds, budget, spent)
             results[controller] = best
             (out / f"{controller}.yml").write_text(_yaml(best))
             if save_dir is not None:

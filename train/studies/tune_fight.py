@@ -188,15 +188,21 @@ def journal_status(out: Path, budget: float | None = None) -> str:
     ``budget`` (the effort constraint as recorded, when None) with its rates, and the rates
     of that trial on a bound of the box (5 %): where a running fight stands (``ptrack tune
     --status``)."""
-    import optuna
-    from optuna.storages import JournalStorage
-    from optuna.storages.journal import JournalFileBackend
-
     from train.common.runs import has_results
 
     path = out / "optuna.journal"
     if not has_results(path):
         return f"{out}: no journal yet"
+    try:
+        import optuna
+        from optuna.storages import JournalStorage
+        from optuna.storages.journal import JournalFileBackend
+    except ImportError as exc:
+        from ptrack_gym.errors import InvalidConfigError
+
+        raise InvalidConfigError(
+            "reading a fight needs the 'tune' extra: pip install 'ptrack_gym[tune]'"
+        ) from exc
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     storage = JournalStorage(JournalFileBackend(str(path)))
     lines = [

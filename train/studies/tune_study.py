@@ -181,9 +181,17 @@ class SeedStudies:
         cfg = self.cfg
         first = cfg.box(controller)
         seeds = list(cfg.study_seeds)
-        if not cfg.carry_boxes or seeds.index(seed) == 0:
+        if not cfg.carry_boxes:
             return first
         stored = self._stored_box(study_name(controller, seed, 0))
+        if stored is not None and seeds.index(seed) == 0:
+            if stored != first:  # the first seed searches the config's box, or nothing
+                raise InvalidConfigError(
+                    f"study {study_name(controller, seed, 0)} searched {box_text(stored)}, "
+                    f"this run's first seed searches {box_text(first)} (its box changed, or "
+                    "the seeds before it were dropped): tune into another --out"
+                )
+            return stored
         if stored is not None:
             if set(stored) != set(first) or any(
                 stored[k][0] > lo or stored[k][1] < hi or stored[k][2] != log
@@ -195,6 +203,8 @@ class SeedStudies:
                     "another --out"
                 )
             return stored
+        if seeds.index(seed) == 0:
+            return first
         previous, box = seeds[seeds.index(seed) - 1], None
         for r in range((cfg.max_widenings if cfg.widen_on_bound else 0) + 1):
             found = self._stored_box(study_name(controller, previous, r))
@@ -202,6 +212,16 @@ class SeedStudies:
                 break
             box = found
         return box or first
+
+    def spent_trials(self, controller: str, seed: int) -> int:
+        """The new trials ``seed`` ran over every round it has in the journal (feasible or
+        not)."""
+        rounds = 0
+        while self._stored_box(study_name(controller, seed, rounds + 1)) is not None:
+            rounds += 1
+        if self._stored_box(study_name(controller, seed, 0)) is None:
+            return 0
+        return len(_new_trials(self.optuna, self.storage, controller, seed, rounds))
 
     def _feasible(self, trial: Any) -> bool:
         return bool(trial.user_attrs["effort"] <= self.budget)
@@ -339,16 +359,23 @@ def _new_trials(optuna: Any, storage: Any, controller: str, seed: int, rounds: i
 
 
 def winner(
-    cfg: TuneConfig, controller: str, seeds: Mapping[int, dict[str, Any] | None], budget: float
+    cfg: TuneConfig,
+    controller: str,
+    seeds: Mapping[int, dict[str, Any] | None],
+    budget: float,
+    spent: int | None = None,
 ) -> dict[str, Any]:
     """The result of ``controller``: the best of its seeds' winners (lowest J), the seeds'
-    spread, every seed's best, and the totals."""
+    spread, every seed's best, and the totals — ``spent``, the new trials of every seed
+    (those without a feasible one too; None: the found seeds' counts), makes ``trials`` and
+    ``env_steps`` what the fight spent."""
     found = {s: r for s, r in seeds.items() if r is not None}
     if not found:
         raise InvalidConfigError(
             f"{controller}: no trial met the effort budget {budget:.4g} in any study seed"
         )
     seed = min(found, key=lambda s: (found[s]["error_rad"], s))
+    trials = spent if spent is not None else sum(r["trials"] for r in found.values())
     w = found[seed]
     return {
         "controller": controller,
@@ -359,11 +386,11 @@ def winner(
         "seed": int(seed),
         "trial": w["trial"],
         "trials_per_study": cfg.study_trials(controller),
-        "trials": sum(r["trials"] for r in found.values()),
+        "trials": trials,
         # what the fight spent on this controller, in the units of an RL budget: every new
         # trial of every seed ran the validation episodes (the copies into a widening ran
         # nothing new)
-        "env_steps": sum(r["trials"] for r in found.values()) * cfg.trial_env_steps(controller),
+        "env_steps": trials * cfg.trial_env_steps(controller),
         "feasible_trials": sum(r["feasible_trials"] for r in found.values()),
         "effort_metric": cfg.effort_metric,
         "effort_budget": float(budget),

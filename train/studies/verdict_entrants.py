@@ -128,6 +128,23 @@ def entrant_comparisons(
     return out[["robot", "reference", *[c for c in out.columns if c not in ("robot", "reference")]]]
 
 
+def trained_env_steps(name: str) -> int:
+    """Env steps entrant ``name`` trained: its last checkpoint (``sb3:<run>@<steps>``: those
+    steps; else the run's newest ``checkpoints/rl_model_<k>_steps.zip``) × its decision
+    period (checkpoints count decisions); 0 without a checkpoint."""
+    import re
+    from pathlib import Path
+
+    run, _, at = name.removeprefix("sb3:").partition("@")
+    if at.isdigit():
+        last = int(at)
+    else:
+        found = [int(m.group(1)) for f in (Path(run) / "checkpoints").glob("rl_model_*_steps.zip")
+                 if (m := re.search(r"rl_model_(\d+)_steps\.zip$", f.name))]  # fmt: skip
+        last = max(found, default=0)
+    return last * int(_run_config(name).get("decision_every", 1))
+
+
 def protocol_markdown(entrants: Mapping[str, Sequence[str]]) -> str:
     """Markdown: what each entrant trained on — algorithm, steps, paths, disturbance
     families, mass randomisation — (issue 39's protocol, in the report that judges it)."""
@@ -140,7 +157,7 @@ def protocol_markdown(entrants: Mapping[str, Sequence[str]]) -> str:
         for name in names:
             c = _run_config(name)
             lines.append(
-                f"| {robot} | {name} | {c.get('algo', 'sac')} | {c.get('steps')} "
+                f"| {robot} | {name} | {c.get('algo', 'sac')} | {trained_env_steps(name)} "
                 f"| {c.get('train_paths') or 'the default path'} "
                 f"| {c.get('train_families') or c.get('disturbance', 'none')} "
                 f"| ±{float(c.get('randomize_mass', 0.0)):g} |"
