@@ -35,7 +35,10 @@ def argv(out: Path, algo: str, residual: str, steps: int, *extra: str) -> list[s
     ]  # fmt: skip
 
 
-@pytest.mark.parametrize(("algo", "residual"), [("sac", "none"), ("td3", "passivity")])
+@pytest.mark.parametrize(
+    ("algo", "residual"),
+    [("sac", "none"), pytest.param("td3", "passivity", marks=pytest.mark.slow)],
+)  # the second: another algorithm and a residual through the same code (make test-slow)
 def test_sbx_run_saves_reloads_as_the_evaluation_does_and_resumes(
     tmp_path: Path, algo: str, residual: str
 ) -> None:

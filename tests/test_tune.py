@@ -230,12 +230,22 @@ def test_episode_workers_reuse_envs_across_gains_and_keep_few(monkeypatch):
 def test_a_study_folder_from_before_validation_design_resumes_only_as_crossed(tmp_path):
     import yaml
 
+    from train.studies.tune import TrialScore
+
+    class Flat:  # a cheap objective: the folder's settings are what is checked, not scores
+        def score(self, controller, rates):
+            return TrialScore(1.0, 0.5, 0)
+
+        def response(self, controller, rates):
+            return np.array([0.0])
+
     out = tmp_path / "study"
-    tune(tiny(out, validation_paths=[9001, 9002]), progress=False)
+    tune(tiny(out, validation_paths=[9001, 9002]), progress=False, objective=Flat())
     saved = yaml.safe_load((out / "config.yml").read_text())
     saved.pop("validation_design")  # as a folder written before the setting existed
     (out / "config.yml").write_text(yaml.safe_dump(saved))
     paired = tiny(out, validation_paths=[9001, 9002], validation_design="paired", trials=3)
     with pytest.raises(InvalidConfigError, match="validation_design 'crossed' -> 'paired'"):
-        tune(paired, resume=True, progress=False)
-    tune(tiny(out, validation_paths=[9001, 9002], trials=3), resume=True, progress=False)
+        tune(paired, resume=True, progress=False, objective=Flat())
+    tune(tiny(out, validation_paths=[9001, 9002], trials=3), resume=True, progress=False,
+         objective=Flat())  # fmt: skip

@@ -121,7 +121,7 @@ def test_bad_arguments_of_a_registered_id_raise() -> None:
         gym.make("ptrack_gym/TwoLinkTrack-Residual-Passivity-v0", gate_rad=-1.0)
 
 
-@pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
+@pytest.mark.parametrize("algo", ["sac", "td3", "ppo", "ppo_lstm"])
 def test_yaml_sections_are_complete_for_the_zoo(algo: str) -> None:
     """rl-zoo3 reads only an env's section when there is one; our loader merges it over
     ``default``. The sections' YAML merge (``<<: *default``) makes the two agree."""
@@ -161,7 +161,11 @@ def test_the_documented_zoo_example_runs_the_intended_episodes() -> None:
 
 
 @pytest.mark.parametrize(
-    "env_id", ["ptrack_gym/TwoLinkTrack-v0", "ptrack_gym/TwoLinkTrack-Residual-Passivity-v0"]
+    "env_id",
+    [  # the residual id goes through everything the plain one does (make test-slow runs both)
+        pytest.param("ptrack_gym/TwoLinkTrack-v0", marks=pytest.mark.slow),
+        "ptrack_gym/TwoLinkTrack-Residual-Passivity-v0",
+    ],
 )
 def test_rl_zoo3_trains_a_plain_and_a_residual_id(tmp_path: Path, env_id: str) -> None:
     pytest.importorskip("rl_zoo3", reason="the optional 'zoo' extra is not installed")
