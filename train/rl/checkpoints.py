@@ -8,7 +8,6 @@ always saved there too, so ``--resume`` continues any finished or interrupted ru
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -16,20 +15,9 @@ from stable_baselines3.common.callbacks import CheckpointCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
+from train.common.checkpoint_files import CHECKPOINT_PREFIX, latest_checkpoint
+from train.common.checkpoint_files import REPLAY_RE as _REPLAY_RE
 from train.rl.hyperparameters import TrainConfigError
-
-CHECKPOINT_PREFIX = "rl_model"
-_CHECKPOINT_RE = re.compile(rf"^{CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")
-_REPLAY_RE = re.compile(rf"^{CHECKPOINT_PREFIX}_replay_buffer_(\d+)_steps\.pkl$")
-
-
-def latest_checkpoint(run_dir: Path) -> tuple[int, Path] | None:
-    """(steps, path) of the newest ``checkpoints/rl_model_<steps>_steps.zip``, or None."""
-    folder = run_dir / "checkpoints"
-    if not folder.is_dir():
-        return None
-    found = [(int(m.group(1)), p) for p in folder.iterdir() if (m := _CHECKPOINT_RE.match(p.name))]
-    return max(found) if found else None
 
 
 def prune_replay_buffers(folder: Path, keep_steps: int) -> None:

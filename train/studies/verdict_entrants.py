@@ -132,16 +132,16 @@ def trained_env_steps(name: str) -> int:
     """Env steps entrant ``name`` trained: its last checkpoint (``sb3:<run>@<steps>``: those
     steps; else the run's newest ``checkpoints/rl_model_<k>_steps.zip``) × its decision
     period (checkpoints count decisions); 0 without a checkpoint."""
-    import re
     from pathlib import Path
+
+    from train.common.checkpoint_files import latest_checkpoint
 
     run, _, at = name.removeprefix("sb3:").partition("@")
     if at.isdigit():
         last = int(at)
     else:
-        found = [int(m.group(1)) for f in (Path(run) / "checkpoints").glob("rl_model_*_steps.zip")
-                 if (m := re.search(r"rl_model_(\d+)_steps\.zip$", f.name))]  # fmt: skip
-        last = max(found, default=0)
+        found = latest_checkpoint(Path(run))
+        last = found[0] if found else 0
     return last * int(_run_config(name).get("decision_every", 1))
 
 
