@@ -27,7 +27,8 @@ from scipy.interpolate import CubicSpline
 
 from agents.base import FloatArray
 from ptrack_gym.errors import InvalidPathError
-from ptrack_gym.paths import PathProjector, ReferencePath
+from ptrack_gym.paths import ReferencePath
+from ptrack_gym.projection import PathProjector
 from ptrack_gym.robots.model import RobotModel
 
 

@@ -22,7 +22,7 @@ N·m) and the clock advances, s ← s_k + dt (s in seconds of path time, S the p
   step besides its nominal dt, so it never jumps to another part of a path that nears
   itself farther than W away in phase (on every robot's default path, points ≥ S/10 apart
   in phase are ≥ 0.18 rad apart). The search uses the package's projector
-  (:class:`~ptrack_gym.paths.PathProjector`): its global nearest point when that lies in
+  (:class:`~ptrack_gym.projection.PathProjector`): its global nearest point when that lies in
   the window (then it is the window's nearest too); otherwise the nearest of its grid
   nodes in the window, refined by Newton steps on ½|q − q_r(s)|² inside the window.
 * **Blending** (``sync_rate_1_s`` γ, default ∞: full re-synchronisation): with β = 1 the
@@ -57,7 +57,7 @@ from agents.computed_torque import ComputedTorqueController, ComputedTorqueGains
 from agents.gains import cap_bandwidth, rates
 from agents.time_indexed import TimeIndexedController
 from ptrack_gym.errors import InvalidConfigError, ResetNeededError
-from ptrack_gym.paths import PathProjector
+from ptrack_gym.projection import PathProjector
 
 #: The gain rates (:class:`agents.registry.RateSource`): computed torque's, under this name.
 NAME = "computed_torque_path"

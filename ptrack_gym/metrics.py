@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ptrack_gym.paths import PathProjector, ReferencePath
+from ptrack_gym.paths import ReferencePath
+from ptrack_gym.projection import PathProjector
 from ptrack_gym.robots.model import RobotModel
 
 FloatArray = NDArray[np.float64]

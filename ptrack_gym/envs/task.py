@@ -20,7 +20,8 @@ from ptrack_gym.envs.rewards import KernelReward
 from ptrack_gym.errors import InvalidActionError, InvalidConfigError
 from ptrack_gym.kernels import DISPATCH_ERRORS
 from ptrack_gym.kernels import task as task_kernels
-from ptrack_gym.paths import PathProjector, ReferencePath
+from ptrack_gym.paths import ReferencePath
+from ptrack_gym.projection import PathProjector
 from ptrack_gym.robots.model import RobotModel
 from ptrack_gym.robots.profile import FloatArray
 

@@ -30,7 +30,8 @@ from ptrack_gym.envs.rewards import (
 from ptrack_gym.envs.task import TrackingTask
 from ptrack_gym.errors import InvalidActionError, InvalidConfigError, InvalidPathError
 from ptrack_gym.kernels.task import clip_action
-from ptrack_gym.paths import PathProjector, ReferencePath, check_joint_limits, make_path
+from ptrack_gym.paths import ReferencePath, check_joint_limits, make_path
+from ptrack_gym.projection import PathProjector
 from ptrack_gym.robots import PinocchioModel
 from ptrack_gym.robots.profile import FloatArray
 from ptrack_gym.sim import BulletSim

@@ -1,5 +1,5 @@
 """The nearest point of a path: the kernel twin of
-:meth:`ptrack_gym.paths.PathProjector.nearest` (whose docstring states the method)."""
+:meth:`ptrack_gym.projection.PathProjector.nearest` (whose docstring states the method)."""
 
 from __future__ import annotations
 
