@@ -306,3 +306,39 @@ def test_the_summary_counts_and_the_headline_marks_episodes_without_a_disturbanc
     assert lines[-1] == (
         "† impulse 1: 2 of 5 episodes saw no disturbance (no work done): not compared"
     )
+
+
+def test_a_search_at_gains_no_longer_shipped_is_labelled_stale(tmp_path):
+    """The worst case of a search at tuned gains is only the shipped controller's while its
+    recorded rates (worst.yml) are the ones in agents/tuned."""
+    import yaml
+
+    from agents.registry import tuned_rates
+
+    folder = tmp_path / "adv"
+    folder.mkdir()
+    cfg = {"env_id": "ptrack_gym/IiwaTrack-v0", "families": ["impulse"], "gains": "tuned",
+           "budget": 200, "post_s": 1.5, "failure_distance_rad": 0.5}  # fmt: skip
+    (folder / "config.yml").write_text(yaml.safe_dump(cfg))
+    row = {
+        "controller": "passivity", "family": "impulse", "energy_j": 2.0, "worst_rad": 0.06,
+        "worst_search_rad": 0.06, "median_random_rad": 0.01, "worst_random_rad": 0.03,
+        "worst_over_median": 6.0, "unstable_search": 0, "n_search": 200,
+        "unstable_random": 0, "n_random": 200, "work_min_j": 0.5, "work_max_j": 3.5,
+    }  # fmt: skip
+    pd.DataFrame([row]).to_csv(folder / "summary.csv", index=False)
+
+    def record(rates: dict) -> None:
+        cell = {"cost_rad": 0.06, "gains": rates}
+        (folder / "worst.yml").write_text(
+            yaml.safe_dump({"worst": {"passivity": {"impulse": {"2": cell}}}})
+        )
+
+    shipped = tuned_rates("iiwa", "passivity")
+    record(shipped)
+    assert "| Iiwa (tuned) | passivity |" in worst_case_section([folder])
+    record({**shipped, "lam": shipped["lam"] * 2})
+    text = worst_case_section([folder])
+    assert "| Iiwa (tuned earlier, stale) | passivity |" in text
+    assert "gains tuned earlier, stale" in text
+    assert "Iiwa (tuned earlier, stale), impulse 2 J" in worst_case_sentence([folder])

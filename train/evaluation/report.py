@@ -186,12 +186,41 @@ def aggregate(
     return "\n".join(lines)
 
 
-def _search_label(cfg: dict[str, Any]) -> str:
+def _search_label(cfg: dict[str, Any], folder: Path | None = None) -> str:
     """A search's robot and gains, e.g. ``Iiwa (tuned)``: one robot may be searched at
-    several gain choices."""
+    several gain choices. A search at tuned gains whose recorded rates (``worst.yml``) are
+    no longer the shipped ones is labelled ``tuned earlier, stale``: its worst cases are
+    of gains the comparison no longer runs."""
     robot = cfg["env_id"].split("/")[-1].replace("Track-v0", "")
     gains = cfg.get("gains", "default")
-    return f"{robot} ({gains if isinstance(gains, str) else 'given'})"
+    label = gains if isinstance(gains, str) else "given"
+    if gains == "tuned" and folder is not None and stale_tuned_search(folder, cfg):
+        label = "tuned earlier, stale"
+    return f"{robot} ({label})"
+
+
+def stale_tuned_search(folder: Path, cfg: dict[str, Any]) -> bool:
+    """Whether a search at tuned gains ran any controller at rates other than those now in
+    ``agents/tuned`` (read from its ``worst.yml``; a controller no longer tuned is stale)."""
+    import yaml
+
+    from agents.registry import tuned_rates
+    from ptrack_gym.errors import InvalidConfigError
+    from ptrack_gym.robots import profile_for_env_id
+
+    worst = folder / "worst.yml"
+    if not worst.exists():
+        return False
+    robot = profile_for_env_id(cfg["env_id"]).name
+    for controller, families in (yaml.safe_load(worst.read_text()).get("worst") or {}).items():
+        used = [cell.get("gains") for levels in families.values() for cell in levels.values()]
+        try:
+            now = tuned_rates(robot, controller)
+        except InvalidConfigError:
+            return True
+        if any(isinstance(g, dict) and g != now for g in used):
+            return True
+    return False
 
 
 def worst_case_section(folders: Sequence[str | Path]) -> str:
@@ -217,7 +246,7 @@ def worst_case_section(folders: Sequence[str | Path]) -> str:
             )
             continue
         cfg = yaml.safe_load(config.read_text())
-        robot = _search_label(cfg)
+        robot = _search_label(cfg, folder)
         s = pd.read_csv(summary)
         for _, r in s.iterrows():
             lines.append(
@@ -230,7 +259,8 @@ def worst_case_section(folders: Sequence[str | Path]) -> str:
             )
         blocks.append(
             f"`{folder}`: {cfg['env_id']}, {', '.join(cfg['families'])}, "
-            f"gains {cfg.get('gains', 'default')}, {cfg['budget']} searched + {cfg['budget']} "
+            f"gains {robot.split('(')[1].rstrip(')')}, {cfg['budget']} searched + "
+            f"{cfg['budget']} "
             f"random episodes per row, cost = path-distance RMS over the {cfg['post_s']:g} s "
             f"after the disturbance (unstable = {cfg['failure_distance_rad']:g} rad)."
         )
@@ -248,7 +278,7 @@ def worst_case_sentence(folders: Sequence[str | Path]) -> str:
             continue
         import yaml
 
-        robot = _search_label(yaml.safe_load((folder / "config.yml").read_text()))
+        robot = _search_label(yaml.safe_load((folder / "config.yml").read_text()), folder)
         s = pd.read_csv(summary)
         for (family, energy), g in s.groupby(["family", "energy_j"]):
             best = g.loc[g["worst_rad"].idxmin()]
