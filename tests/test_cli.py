@@ -114,3 +114,17 @@ def test_a_missing_file_is_a_usage_error_and_a_failure_is_status_1(
     assert err.strip() == (
         "ptrack report: failed: RuntimeError: the pool died (PTRACK_TRACEBACK=1 shows where)"
     )
+
+
+def test_report_against_another_sweep_prints_how_alike_they_rank(capsys) -> None:
+    main_job = ROOT / "docs" / "results" / "main"
+    assert main(["report", str(main_job), "--no-rewrite", "--against", str(main_job)]) == 0
+    out = capsys.readouterr().out
+    assert "Rankings, main against main, path_dist_rms:" in out
+    assert "Rankings, main against main, time_err_rms:" in out
+    assert "Same leader in 13 of 13 conditions; Kendall τ mean 1.00, min 1.00." in out
+    with pytest.raises(SystemExit) as exc:
+        main(["report", str(main_job), "--no-rewrite", "--against",
+              str(ROOT / "docs" / "results" / "control_rates")])  # fmt: skip
+    assert exc.value.code == 2
+    assert "not an evaluation's results folder" in capsys.readouterr().err

@@ -223,6 +223,12 @@ def _replay(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
 def _report_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("folders", nargs="+", type=Path, help="results folders (episodes.csv)")
     p.add_argument("--no-rewrite", action="store_true", help="only print each folder's headline")
+    p.add_argument(
+        "--against",
+        type=Path,
+        help="another evaluation's results folder: print whether it ranks the controllers "
+        "as each folder does (leaders and Kendall's tau per shared condition, both metrics)",
+    )
 
 
 def results_kind(folder: Path) -> str:
@@ -269,7 +275,32 @@ def _report(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
                 finish(cfg, folder, show=False)
             print(f"{folder / 'report.md'}:\n")
             print(headline_of(folder, cfg.metric) + "\n")
+            if args.against is not None:
+                print(agreement_of(folder, args.against) + "\n")
     return 0
+
+
+def agreement_of(folder: Path, against: Path) -> str:
+    """Whether two evaluation folders rank their controllers alike
+    (:func:`train.evaluation.verdict.ranking_agreement`), on both metrics; the focus is
+    the passivity controller where both ran it."""
+    import pandas as pd
+
+    from ptrack_gym.errors import InvalidConfigError
+    from train.evaluation.verdict import BOTH_METRICS, agreement_table, ranking_agreement
+
+    if results_kind(against) != "evaluate":
+        raise InvalidConfigError(f"--against {against}: not an evaluation's results folder")
+    a, b = pd.read_csv(folder / "summary.csv"), pd.read_csv(against / "summary.csv")
+    focus = "passivity" if "passivity" in set(a.controller) & set(b.controller) else None
+    blocks = []
+    for metric in BOTH_METRICS:
+        if f"{metric}_mean" in a and f"{metric}_mean" in b:
+            table = agreement_table(
+                ranking_agreement(a, b, metric, focus), (folder.name, against.name)
+            )
+            blocks.append(f"Rankings, {folder.name} against {against.name}, {metric}:\n\n{table}")
+    return "\n\n".join(blocks)
 
 
 def headline_of(folder: Path, metric: str) -> str:

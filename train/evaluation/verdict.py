@@ -14,7 +14,9 @@
   are the marks of a paired sign-flip test with Holm's correction over the conditions (one
   family per metric). The rival is chosen on the same episodes it is tested on, which can
   only make the focus look worse (a rival picked for its low mean), never better;
-* :func:`ranking_table` — per condition, the controllers ordered by mean under each metric.
+* :func:`ranking_table` — per condition, the controllers ordered by mean under each metric;
+* :func:`ranking_agreement` — whether two sweeps (e.g. disturbances sized at the home pose
+  and at the onset) rank the controllers alike: leaders and Kendall's τ per condition.
 """
 
 from __future__ import annotations
@@ -188,4 +190,66 @@ def ranking_table(df: pd.DataFrame, metrics: tuple[str, ...]) -> str:
             for m in metrics
         ]
         lines.append(f"| {condition_name(dist, level)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def ranking_agreement(
+    a: pd.DataFrame, b: pd.DataFrame, metric: str, focus: str | None = None
+) -> pd.DataFrame:
+    """Whether two sweeps of the same controllers rank them alike, per condition both ran.
+
+    ``a`` and ``b`` are summaries (``controller``, ``disturbance``, ``level``,
+    ``<metric>_mean``), e.g. the main job with disturbances sized at the home pose and at
+    the onset. Per condition: each sweep's leader (lowest mean), whether they agree,
+    Kendall's τ-b between the two orderings of the controllers both ran
+    (``scipy.stats.kendalltau``; 1 = the same order) and, given ``focus``, its place in each
+    (1 = best).
+
+    Raises:
+        ValueError: the sweeps share no condition, or fewer than 2 controllers in one.
+    """
+    from scipy.stats import kendalltau
+
+    col = f"{metric}_mean"
+    rows = []
+    keys = ["disturbance", "level"]
+    shared = a[keys].drop_duplicates().merge(b[keys].drop_duplicates())
+    if shared.empty:
+        raise ValueError("the two sweeps share no condition")
+    for dist, level in shared.itertuples(index=False):
+        ma = a[(a.disturbance == dist) & (a.level == level)].set_index("controller")[col]
+        mb = b[(b.disturbance == dist) & (b.level == level)].set_index("controller")[col]
+        both = sorted(set(ma.index) & set(mb.index))
+        if len(both) < 2:
+            raise ValueError(f"{condition_name(dist, level)}: fewer than 2 shared controllers")
+        ma, mb = ma[both], mb[both]
+        row = {
+            "condition": condition_name(dist, level),
+            "leader_a": ma.idxmin(),
+            "leader_b": mb.idxmin(),
+            "same_leader": ma.idxmin() == mb.idxmin(),
+            "kendall_tau": float(kendalltau(ma.to_numpy(), mb.to_numpy()).statistic),
+        }
+        if focus is not None and focus in both:
+            row["focus_place_a"] = int(ma.rank(method="min")[focus])
+            row["focus_place_b"] = int(mb.rank(method="min")[focus])
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def agreement_table(agreement: pd.DataFrame, names: tuple[str, str] = ("a", "b")) -> str:
+    """Markdown of :func:`ranking_agreement`, with its mean and minimum τ underneath."""
+    has_focus = "focus_place_a" in agreement
+    head = f"| condition | leader, {names[0]} | leader, {names[1]} | Kendall τ |"
+    head += f" focus place, {names[0]} | focus place, {names[1]} |" if has_focus else ""
+    lines = [head, "|---|---|---|---:|" + ("---:|---:|" if has_focus else "")]
+    for r in agreement.itertuples(index=False):
+        line = f"| {r.condition} | {r.leader_a} | {r.leader_b} | {r.kendall_tau:.2f} |"
+        line += f" {r.focus_place_a} | {r.focus_place_b} |" if has_focus else ""
+        lines.append(line)
+    tau = agreement["kendall_tau"]
+    lines.append(
+        f"\nSame leader in {int(agreement['same_leader'].sum())} of {len(agreement)} "
+        f"conditions; Kendall τ mean {tau.mean():.2f}, min {tau.min():.2f}."
+    )
     return "\n".join(lines)
