@@ -50,9 +50,11 @@ class ResidualSpec:
     base: str = "passivity"
     """The base controller: a name of :data:`agents.registry.CONTROLLER_NAMES`, or
     :data:`NETWORK_BASE` for a saved pure policy."""
-    base_gains: str = "default"
-    """The base's gains: ``"default"`` (the robot's default rates at the env's control rate)
-    or ``"tuned"`` (the rates in ``agents/tuned``); ``"default"`` for a network base."""
+    base_gains: str | Mapping[str, float] = "default"
+    """The base's gains: ``"default"`` (the robot's default rates at the env's control rate),
+    ``"tuned"`` (the rates in ``agents/tuned``, as they are now) or the rates themselves
+    (rate → value, as ``make_controller`` takes them: what a trained residual pins, since
+    ``agents/tuned`` changes when a controller is retuned); ``"default"`` for a network base."""
     base_model: str | None = None
     """With ``base`` = :data:`NETWORK_BASE`, the folder of the saved pure policy that is the
     base (:mod:`agents.network`); None otherwise."""
@@ -213,13 +215,29 @@ def check_prior(base: str | None, prior_gain_per_rad: float) -> None:
         )
 
 
-def check_base_gains(base_gains: str) -> None:
+def check_base_gains(base_gains: object) -> None:
     """Raise :class:`InvalidConfigError` unless ``base_gains`` is one of
-    :data:`agents.registry.GAIN_CHOICES` ("default", "tuned")."""
+    :data:`agents.registry.GAIN_CHOICES` ("default", "tuned") or a non-empty mapping of rate
+    names to finite real numbers (which rates the base knows is checked when it is built)."""
+    if isinstance(base_gains, Mapping):
+        bad = {
+            k: v
+            for k, v in base_gains.items()
+            if not isinstance(k, str)
+            or isinstance(v, bool)
+            or not isinstance(v, (int, float))
+            or not math.isfinite(v)
+        }
+        if not base_gains or bad:
+            raise InvalidConfigError(
+                f"base_gains as rates must map rate names to finite numbers, got "
+                f"{dict(base_gains)!r}"
+            )
+        return
     check_gain_choice(base_gains, "base_gains")
 
 
-def _check_base_pairing(base: str | None, base_model: str | None, base_gains: str) -> None:
+def _check_base_pairing(base: str | None, base_model: str | None, base_gains: object) -> None:
     """A ``base_model`` exactly for a network base, which keeps the default gains."""
     if base == NETWORK_BASE:
         if base_gains != "default":
@@ -231,7 +249,10 @@ def _check_base_pairing(base: str | None, base_model: str | None, base_gains: st
 
 
 def check_base_model(
-    base: str | None, base_model: str | None, robot: str | None = None, base_gains: str = "default"
+    base: str | None,
+    base_model: str | None,
+    robot: str | None = None,
+    base_gains: object = "default",
 ) -> None:
     """Raise :class:`InvalidConfigError` unless ``base_model`` (a model folder) is given
     exactly when ``base`` is :data:`NETWORK_BASE` (None: a controller object) and then

@@ -100,7 +100,7 @@ Env = gym.Env[np.ndarray, np.ndarray]
 
 
 def build_base(
-    env: Any, base: str, base_gains: str, base_model: str | None, path: Any = None
+    env: Any, base: str, base_gains: Any, base_model: str | None, path: Any = None
 ) -> Controller:
     """The base controller ``base`` for ``env``: a registry controller with ``base_gains``
     (on ``path``, one of a pool's, instead of the env's own), or, for

@@ -233,6 +233,18 @@ def test_tuned_base_gains_build_the_tuned_controller_and_survive_the_spec(
     assert registered.get_wrapper_attr("controller").gains == tuned
 
 
+def test_base_gains_may_be_the_rates_themselves(make_env) -> None:
+    """What a trained residual pins: the base built from the very rates given."""
+    rates = {"omega": 25.0, "zeta": 0.9}
+    env = make_env.track(make_residual_env(TWO_LINK, "computed_torque", base_gains=rates, **SHORT))
+    plain = make_env(TWO_LINK, **SHORT)
+    assert env.controller.gains == make_controller("computed_torque", plain, rates).gains
+    assert env.controller.gains != make_controller("computed_torque", plain).gains
+    for bad in ({}, {"omega": float("nan")}, {"omega": "fast"}, {"omega": True}):
+        with pytest.raises(InvalidConfigError, match="base_gains as rates"):
+            make_residual_env(TWO_LINK, "computed_torque", base_gains=bad)
+
+
 def test_bad_configuration_raises(make_env) -> None:
     with pytest.raises(InvalidConfigError, match="base_gains must be one of"):
         make_residual_env(TWO_LINK, "passivity", base_gains="stiff")

@@ -6,6 +6,8 @@ its README describes."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 pytest.importorskip(
@@ -99,11 +101,35 @@ def test_shipped_model_runs_deterministically_and_acts(model: str, monkeypatch) 
     elif gated:  # on the path it is its base, bit for bit; pushed off it, it acts
         gate = yaml.safe_load((run_dir / "deploy.yml").read_text())
         band = gate["gate_deadband_rad"]
+        pinned = yaml.safe_load((run_dir / "config.yml").read_text())["derived"].get("base_rates")
+        # its base alone at the rates it trained over (pinned), not agents/tuned's of today
+        own = dataclasses.replace(settings, gains=tuple(pinned.items())) if pinned else settings
         for disturbance, same in (("none", True), ("noise", False)):
             level = 0.0 if disturbance == "none" else 1.0  # noise: off the band within 1 s
             row, _ = run_episode(Task(model, disturbance, level, 0, 0), settings)
-            alone, _ = run_episode(Task(base["residual"], disturbance, level, 0, 0), settings)
+            alone, _ = run_episode(Task(base["residual"], disturbance, level, 0, 0), own)
             assert (alone["path_dist_max"] > band) != same  # the base left the band or not
             assert (row["tau_rms_frac"] == alone["tau_rms_frac"]) == same, disturbance
     else:
         assert row_a["path_dist_rms"] < 0.1  # a pure policy that tracks, roughly
+
+
+def test_the_iiwa_residuals_keep_the_base_they_trained_over(monkeypatch) -> None:
+    """The shipped iiwa residuals trained over the one-seed tuned gains; the tuning fight
+    retuned agents/tuned since. Each runs over its pinned rates (derived.base_rates), and a
+    sweep that runs its base alone at today's tuned gains says so."""
+    from agents.registry import tuned_rates
+    from train.evaluation.config import load_config
+    from train.evaluation.envs import trained_wrapper_kwargs
+    from train.evaluation.policies import run_config
+
+    monkeypatch.chdir(ROOT)
+    shipped = (("sac_residual_passivity_iiwa_gated", "passivity"),
+               ("sac_residual_computed_torque_iiwa_gated", "computed_torque"))  # fmt: skip
+    for model, base in shipped:
+        run = run_config(ROOT / "models" / model)
+        pinned = trained_wrapper_kwargs(run)["base_gains"]
+        assert pinned == run["derived"]["base_rates"] != tuned_rates("iiwa", base)
+    cfg = load_config(ROOT / "train/configs/evaluate/main_rl_iiwa.yml", [])
+    lines = cfg.base_gain_mismatches()
+    assert sum("at tuned rates since retuned" in line for line in lines) == 2

@@ -433,18 +433,49 @@ def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
 
 def test_tuned_base_gains_reach_the_training_env(tmp_path: Path) -> None:
     """--base-gains tuned: the residual corrects the base with agents/tuned's gains."""
-    from agents.registry import make_controller
+    from agents.registry import make_controller, tuned_rates
     from train.rl.run import _env_factory
 
     res = validate(
         parse_args(argv(tmp_path / "t", "sac", "passivity", 100, "--base-gains", "tuned"))
     )
-    assert res.residual_kwargs["base_gains"] == "tuned"
+    # pinned: the rates themselves, so a later retune of agents/tuned cannot move the base
+    assert res.residual_kwargs["base_gains"] == tuned_rates("two_link", "passivity")
     env = _env_factory(res, "none")()
     try:
         assert env.controller.gains == make_controller("passivity", env, "tuned").gains
     finally:
         env.close()
+
+
+def test_a_run_pins_its_tuned_base_and_is_evaluated_and_resumed_over_it(tmp_path: Path) -> None:
+    """config.yml records the tuned rates the base ran (derived.base_rates); the evaluation
+    and a --resume use them, not agents/tuned's of the day."""
+    from agents.registry import tuned_rates
+    from train.evaluation.envs import trained_wrapper_kwargs
+    from train.rl.run import write_run_files
+
+    out = tmp_path / "pinned"
+    res = validate(parse_args(argv(out, "sac", "passivity", 100, "--base-gains", "tuned")))
+    write_run_files(res, out, None)
+    saved = yaml.safe_load((out / "config.yml").read_text())
+    assert saved["derived"]["base_rates"] == tuned_rates("two_link", "passivity")
+    # the day agents/tuned is retuned: the run keeps the rates it trained over
+    older = {**saved["derived"]["base_rates"], "omega": 7.5}
+    saved["derived"]["base_rates"] = older
+    (out / "config.yml").write_text(yaml.safe_dump(saved, sort_keys=False))
+    assert trained_wrapper_kwargs(saved)["base_gains"] == older
+    (out / "checkpoints").mkdir()
+    (out / "checkpoints" / "rl_model_100_steps.zip").write_bytes(b"")
+    resumed = validate(
+        parse_args([*argv(out, "sac", "passivity", 200, "--base-gains", "tuned"), "--resume"])
+    )
+    assert resumed.residual_kwargs["base_gains"] == older
+    # default gains pin nothing
+    plain = validate(parse_args(argv(tmp_path / "d", "sac", "passivity", 100)))
+    write_run_files(plain, tmp_path / "d", None)
+    derived = yaml.safe_load((tmp_path / "d" / "config.yml").read_text())["derived"]
+    assert derived["base_rates"] is None
 
 
 def test_control_prior_reaches_the_training_env(tmp_path: Path) -> None:

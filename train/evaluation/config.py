@@ -193,14 +193,29 @@ class EvalConfig:
         for c in self.controllers:
             if not c.startswith(SB3_PREFIX):
                 continue
-            trained = run_config(sb3_files(c)[0])["config"]
+            run = run_config(sb3_files(c)[0])
+            trained, pinned = run["config"], (run.get("derived") or {}).get("base_rates")
             base, gains = trained.get("residual", "none"), trained.get("base_gains", "default")
-            if base in self.controllers and gains != self.gains:
+            if base not in self.controllers:
+                continue
+            if gains != self.gains:
                 lines.append(
                     f"{c} was trained over {base} at {gains} gains; {base} alone runs here at "
                     f"{self.gains} gains (the residual keeps its own base's)"
                 )
+            elif pinned and self.gains == "tuned" and dict(pinned) != self._tuned(base):
+                lines.append(
+                    f"{c} was trained over {base} at tuned rates since retuned ({pinned}); "
+                    f"{base} alone runs here at agents/tuned's (the residual keeps its own base's)"
+                )
         return lines
+
+    def _tuned(self, controller: str) -> dict[str, object]:
+        """``controller``'s rates in ``agents/tuned`` for this sweep's robot."""
+        from agents.registry import tuned_rates
+        from ptrack_gym.robots import profile_for_env_id
+
+        return tuned_rates(profile_for_env_id(self.env_id).name, controller)
 
     def settings(self) -> EpisodeSettings:
         return EpisodeSettings(

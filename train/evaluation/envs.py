@@ -42,6 +42,19 @@ def residual_wrapper_kwargs(config: Mapping[str, Any]) -> dict[str, Any]:
     return {key: config.get(key, default) for key, default in WRAPPER_DEFAULTS.items()}
 
 
+def trained_wrapper_kwargs(run: Mapping[str, Any]) -> dict[str, Any]:
+    """The residual wrapper's arguments of a trained run (its whole ``config.yml``:
+    ``config`` and ``derived``): :func:`residual_wrapper_kwargs`, with the base's rates
+    the run pinned (``derived.base_rates``, written when it trained over ``"tuned"``
+    gains) in place of ``"tuned"`` — so a shipped residual keeps the base it learned to
+    correct when ``agents/tuned`` is retuned."""
+    kwargs = residual_wrapper_kwargs(run["config"])
+    pinned = (run.get("derived") or {}).get("base_rates")
+    if pinned:
+        kwargs["base_gains"] = dict(pinned)
+    return kwargs
+
+
 def env_kwargs(
     control_hz: float,
     max_episode_steps: int,

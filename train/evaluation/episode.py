@@ -53,7 +53,7 @@ from agents.registry import make_controller
 from agents.time_indexed import TimeIndexedController
 from ptrack_gym.errors import ControllerDivergedError
 from ptrack_gym.metrics import EpisodeRecord, episode_metrics, feedforward_torques
-from train.evaluation.envs import build_env, env_kwargs, residual_wrapper_kwargs
+from train.evaluation.envs import build_env, env_kwargs, trained_wrapper_kwargs
 
 #: Columns identifying an episode, in the CSV's order.
 KEY_COLUMNS: tuple[str, ...] = ("controller", "disturbance", "level", "seed", "episode")
@@ -219,7 +219,7 @@ def _sb3_env_and_policy(
             _disturbance_text(disturbance, level),
             extra=settings_kwargs(settings),
             residual_kwargs={  # the gate acts on the torque; the penalty only on the reward
-                **residual_wrapper_kwargs(c),
+                **trained_wrapper_kwargs(cfg),  # the base's rates as it trained over
                 **deploy_safeguards(sb3_files(controller)[0]),  # deploy.yml's gate wins
             }
             if c["residual"] != "none"

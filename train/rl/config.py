@@ -61,6 +61,7 @@ from train.rl.resume import (
     check_resume_compatible,
     given_fields,
     resume_config,
+    saved_config,
 )
 from train.rl.splits import check_split_envs, check_splits
 
@@ -391,6 +392,8 @@ def validate(cfg: TrainConfig) -> Resolved:
             "or a new --out"
         )
     check_agreement(dataclasses.asdict(cfg), algo_kwargs, n_envs, done, int(steps))
+    if residual_kwargs and cfg.base_gains == "tuned":  # pinned: agents/tuned may be retuned
+        residual_kwargs = {**residual_kwargs, "base_gains": _pinned_rates(cfg, profile.name)}
     return Resolved(
         cfg,
         profile.name,
@@ -404,6 +407,19 @@ def validate(cfg: TrainConfig) -> Resolved:
         env_extra,
         residual_kwargs,
     )
+
+
+def _pinned_rates(cfg: TrainConfig, robot: str) -> dict[str, Any]:
+    """The tuned rates of the base a run trains over: on ``--resume``, those it started with
+    (its ``derived.base_rates``; a run written before they were recorded takes today's),
+    else ``agents/tuned``'s now. Written to ``config.yml`` and read back by the evaluation
+    (:func:`train.evaluation.envs.trained_wrapper_kwargs`)."""
+    if cfg.resume:
+        saved = saved_config(Path(cfg.out)) or {}
+        pinned = (saved.get("derived") or {}).get("base_rates")
+        if pinned:
+            return dict(pinned)
+    return tuned_rates(robot, cfg.residual)
 
 
 #: TrainConfig's defaults, for the keys a run written before they existed lacks.

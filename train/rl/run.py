@@ -253,6 +253,12 @@ def write_run_files(res: Resolved, run_dir: Path, argv: Sequence[str] | None) ->
             "steps": res.steps,
             "n_envs": res.n_envs,
             "vec_normalize": res.normalize_kwargs,
+            # the base's tuned rates as trained over (None: default gains, or no base)
+            "base_rates": (
+                dict(res.residual_kwargs["base_gains"])
+                if isinstance(res.residual_kwargs.get("base_gains"), dict)
+                else None
+            ),
         },
         "hyperparams": {**res.algo_kwargs, **res.special},
     }

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ptrack_gym.errors import InvalidActionError
-from train.evaluation.envs import build_decision_env, residual_wrapper_kwargs
+from train.evaluation.envs import build_decision_env, trained_wrapper_kwargs
 from train.evaluation.policies import deploy_safeguards, load_sb3_policy, run_config
 
 
@@ -73,7 +73,7 @@ def action_usage(run_dir: Path, seed: int, threshold: float = 0.9) -> ActionUsag
         derived["max_episode_steps"],
         config["start"],
         None,
-        residual_kwargs={**residual_wrapper_kwargs(config), **deploy_safeguards(run_dir)}
+        residual_kwargs={**trained_wrapper_kwargs(cfg), **deploy_safeguards(run_dir)}
         if residual != "none"
         else None,
     )
