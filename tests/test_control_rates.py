@@ -331,32 +331,41 @@ def test_time_indexed_gains_keep_their_coupled_modes_inside_the_sample_limits(na
         env.close()
 
 
+#: The iiwa passivity rates of the one-seed tuning study (2026-11-23), at which the nominal
+#: model's acceleration prediction is biased by a payload; the fight's rates (agents/tuned
+#: since 2026-11-26: slower σ dynamics, λ 4.2) show no such bias, all holds within 1 %.
+BIASED_RATES = {"omega": 31.387322090421033, "omega_s": 77.23075435532087,
+                "rho": 26.067742708338685, "lam": 9.94434702490342}  # fmt: skip
+
+
 def test_the_hold_is_not_biased_by_a_payload_the_model_does_not_know() -> None:
-    """The iiwa at 1 kHz with its tuned gains under the payload preset (level 1): with the
-    model's acceleration error estimate b̂ the midpoint hold tracks as the sample hold does
-    (within 10%); predicting the acceleration with the nominal model alone (T_b = 0) it is
-    ≥ 1.3× worse (measured on 8 seeds: 1.54e-2, 1.55e-2 and 2.26e-2 rad)."""
+    """The iiwa at 1 kHz under the payload preset (level 1): with the model's acceleration
+    error estimate b̂ the midpoint hold tracks as the sample hold does (within 10%), at the
+    tuned gains and at :data:`BIASED_RATES`; predicting the acceleration with the nominal
+    model alone (T_b = 0) is ≥ 1.3× worse at the latter (measured on 8 seeds: 1.54e-2,
+    1.55e-2 and 2.26e-2 rad)."""
     from train.evaluation.envs import env_kwargs
 
     env = gym.make("ptrack_gym/IiwaTrack-v0", **env_kwargs(1000.0, 8000, "on_path", "payload:1.0"))
     ctx = ControlContext.from_env(env)
     tables = passivity_tables(ctx.path, ctx.model)
-    gains = passivity.gains_from_rates(ctx, tuned_rates("iiwa", "passivity"), tables)
-    rms = {}
-    for label, kw in (
-        ("estimate", {}),
-        ("sample", {"hold": "sample"}),
-        ("model", {"hold_filter_s": 0.0}),
+    for rates, holds in (
+        (BIASED_RATES, ("estimate", "sample", "model")),
+        (tuned_rates("iiwa", "passivity"), ("estimate", "sample")),
     ):
-        values = []
-        for seed in (0, 1):
-            record = _run(
-                env, PassivityController(ctx.model, tables, gains, **kw), seed=10_000 * seed
-            )
-            values.append(np.sqrt(np.mean(record.path_distance**2)))
-        rms[label] = float(np.mean(values))
-    assert rms["estimate"] <= 1.1 * rms["sample"], rms
-    assert rms["model"] >= 1.3 * rms["estimate"], rms
+        gains = passivity.gains_from_rates(ctx, rates, tables)
+        kwargs = {"estimate": {}, "sample": {"hold": "sample"}, "model": {"hold_filter_s": 0.0}}
+        rms = {}
+        for label in holds:
+            values = []
+            for seed in (0, 1):
+                ctrl = PassivityController(ctx.model, tables, gains, **kwargs[label])
+                record = _run(env, ctrl, seed=10_000 * seed)
+                values.append(np.sqrt(np.mean(record.path_distance**2)))
+            rms[label] = float(np.mean(values))
+        assert rms["estimate"] <= 1.1 * rms["sample"], (rates, rms)
+        if "model" in rms:
+            assert rms["model"] >= 1.3 * rms["estimate"], rms
     env.close()
 
 
