@@ -199,7 +199,17 @@ def test_stratified_bootstrap_resamples_runs_within_each_task():
     np.testing.assert_allclose(p3, 3 * p1, rtol=1e-12)
 
 
-def test_worst_case_section_reads_a_search_summary(tmp_path):
+#: One row of a search's summary.csv: passivity's worst impulse at 2 J.
+SEARCH_ROW = {
+    "controller": "passivity", "family": "impulse", "energy_j": 2.0, "worst_rad": 0.06,
+    "worst_search_rad": 0.06, "median_random_rad": 0.01, "worst_random_rad": 0.03,
+    "worst_over_median": 6.0, "unstable_search": 0, "n_search": 200,
+    "unstable_random": 0, "n_random": 200, "work_min_j": 0.5, "work_max_j": 3.5,
+}  # fmt: skip
+
+
+def search_folder(tmp_path):
+    """A search folder with the config.yml of an impulse search at tuned gains on the iiwa."""
     import yaml
 
     folder = tmp_path / "adv"
@@ -207,12 +217,13 @@ def test_worst_case_section_reads_a_search_summary(tmp_path):
     (folder / "config.yml").write_text(yaml.safe_dump({
         "env_id": "ptrack_gym/IiwaTrack-v0", "families": ["impulse"], "gains": "tuned",
         "budget": 200, "post_s": 1.5, "failure_distance_rad": 0.5}))  # fmt: skip
-    row = {
-        "controller": "passivity", "family": "impulse", "energy_j": 2.0, "worst_rad": 0.06,
-        "worst_search_rad": 0.06, "median_random_rad": 0.01, "worst_random_rad": 0.03,
-        "worst_over_median": 6.0, "unstable_search": 0, "n_search": 200,
-        "unstable_random": 0, "n_random": 200, "work_min_j": 0.5, "work_max_j": 3.5,
-    }  # fmt: skip
+    return folder
+
+
+def test_worst_case_section_reads_a_search_summary(tmp_path):
+
+    folder = search_folder(tmp_path)
+    row = dict(SEARCH_ROW)
     # a random draw found what the search missed: it is the worst case, and it is counted
     paper = {**row, "controller": "passivity_paper", "worst_rad": 0.5, "worst_search_rad": 0.04,
              "worst_random_rad": 0.5, "worst_over_median": 4.0, "unstable_random": 1}  # fmt: skip
@@ -315,18 +326,8 @@ def test_a_search_at_gains_no_longer_shipped_is_labelled_stale(tmp_path):
 
     from agents.registry import tuned_rates
 
-    folder = tmp_path / "adv"
-    folder.mkdir()
-    cfg = {"env_id": "ptrack_gym/IiwaTrack-v0", "families": ["impulse"], "gains": "tuned",
-           "budget": 200, "post_s": 1.5, "failure_distance_rad": 0.5}  # fmt: skip
-    (folder / "config.yml").write_text(yaml.safe_dump(cfg))
-    row = {
-        "controller": "passivity", "family": "impulse", "energy_j": 2.0, "worst_rad": 0.06,
-        "worst_search_rad": 0.06, "median_random_rad": 0.01, "worst_random_rad": 0.03,
-        "worst_over_median": 6.0, "unstable_search": 0, "n_search": 200,
-        "unstable_random": 0, "n_random": 200, "work_min_j": 0.5, "work_max_j": 3.5,
-    }  # fmt: skip
-    pd.DataFrame([row]).to_csv(folder / "summary.csv", index=False)
+    folder = search_folder(tmp_path)
+    pd.DataFrame([SEARCH_ROW]).to_csv(folder / "summary.csv", index=False)
 
     def record(rates: dict) -> None:
         cell = {"cost_rad": 0.06, "gains": rates}
