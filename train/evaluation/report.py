@@ -186,17 +186,20 @@ def aggregate(
     return "\n".join(lines)
 
 
-def _search_label(cfg: dict[str, Any], folder: Path | None = None) -> str:
-    """A search's robot and gains, e.g. ``Iiwa (tuned)``: one robot may be searched at
-    several gain choices. A search at tuned gains whose recorded rates (``worst.yml``) are
-    no longer the shipped ones is labelled ``tuned earlier, stale``: its worst cases are
-    of gains the comparison no longer runs."""
-    robot = cfg["env_id"].split("/")[-1].replace("Track-v0", "")
+def _gains_label(cfg: dict[str, Any], folder: Path) -> str:
+    """A search's gains in words: ``default``, ``tuned``, ``given``, or ``tuned earlier,
+    stale`` for a search at tuned gains whose recorded rates (``worst.yml``) are no longer
+    the shipped ones — its worst cases are of gains the comparison no longer runs."""
     gains = cfg.get("gains", "default")
-    label = gains if isinstance(gains, str) else "given"
-    if gains == "tuned" and folder is not None and stale_tuned_search(folder, cfg):
-        label = "tuned earlier, stale"
-    return f"{robot} ({label})"
+    if not isinstance(gains, str):
+        return "given"
+    return "tuned earlier, stale" if gains == "tuned" and stale_tuned_search(folder, cfg) else gains
+
+
+def _search_label(cfg: dict[str, Any], gains: str) -> str:
+    """A search's robot and its gains label (:func:`_gains_label`), e.g. ``Iiwa (tuned)``:
+    one robot may be searched at several gain choices."""
+    return f"{cfg['env_id'].split('/')[-1].replace('Track-v0', '')} ({gains})"
 
 
 def stale_tuned_search(folder: Path, cfg: dict[str, Any]) -> bool:
@@ -246,7 +249,8 @@ def worst_case_section(folders: Sequence[str | Path]) -> str:
             )
             continue
         cfg = yaml.safe_load(config.read_text())
-        robot = _search_label(cfg, folder)
+        gains = _gains_label(cfg, folder)
+        robot = _search_label(cfg, gains)
         s = pd.read_csv(summary)
         for _, r in s.iterrows():
             lines.append(
@@ -259,7 +263,7 @@ def worst_case_section(folders: Sequence[str | Path]) -> str:
             )
         blocks.append(
             f"`{folder}`: {cfg['env_id']}, {', '.join(cfg['families'])}, "
-            f"gains {robot.split('(')[1].rstrip(')')}, {cfg['budget']} searched + "
+            f"gains {gains}, {cfg['budget']} searched + "
             f"{cfg['budget']} "
             f"random episodes per row, cost = path-distance RMS over the {cfg['post_s']:g} s "
             f"after the disturbance (unstable = {cfg['failure_distance_rad']:g} rad)."
@@ -278,7 +282,8 @@ def worst_case_sentence(folders: Sequence[str | Path]) -> str:
             continue
         import yaml
 
-        robot = _search_label(yaml.safe_load((folder / "config.yml").read_text()), folder)
+        cfg = yaml.safe_load((folder / "config.yml").read_text())
+        robot = _search_label(cfg, _gains_label(cfg, folder))
         s = pd.read_csv(summary)
         for (family, energy), g in s.groupby(["family", "energy_j"]):
             best = g.loc[g["worst_rad"].idxmin()]
