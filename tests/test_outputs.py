@@ -13,9 +13,11 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
+import yaml
 
 from ptrack_gym.errors import InvalidConfigError
 from train.common.runs import open_run
@@ -74,6 +76,31 @@ def test_a_folder_that_holds_files_is_refused_unless_resume_or_force(tmp_path: P
     assert not run.resumed and not (out / "episodes.csv").exists()  # starts over
     (out / "episodes.csv").write_text("header\nrow\n")
     assert open_run(out, "episodes.csv", {"a": 1}, resume=True).resumed
+
+
+def test_a_resume_never_shows_another_process_a_partial_config(tmp_path: Path) -> None:
+    """Several ``tune --resume`` processes (one per controller) share one folder: each
+    rewrites config.yml while the others read it on their own resume check."""
+    out = tmp_path / "run"
+    settings = {"a": 1, "paths": list(range(300))}
+    text = yaml.safe_dump(settings, sort_keys=False)
+    open_run(out, "episodes.csv", settings, resume=False)
+    (out / "episodes.csv").write_text("header\nrow\n")
+    stop = threading.Event()
+
+    def rewrite() -> None:
+        while not stop.is_set():
+            open_run(out, "episodes.csv", settings, resume=True)
+
+    writer = threading.Thread(target=rewrite)
+    writer.start()
+    try:
+        seen = {(out / "config.yml").read_text() for _ in range(20000)}
+    finally:
+        stop.set()
+        writer.join()
+    assert seen == {text}
+    assert sorted(p.name for p in out.iterdir()) == ["command.txt", "config.yml", "episodes.csv"]
 
 
 def test_tune_save_refuses_to_replace_shipped_gains(tmp_path: Path) -> None:

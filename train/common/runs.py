@@ -119,9 +119,24 @@ def open_run(
                 f"{saved} is missing: cannot check that --resume continues the same run"
             )
     out.mkdir(parents=True, exist_ok=True)
-    saved.write_text(yaml.safe_dump(dict(settings), sort_keys=False))
-    (out / COMMAND_FILE).write_text(shlex.join(getattr(sys, "orig_argv", sys.argv)) + "\n")
+    write_atomic(saved, yaml.safe_dump(dict(settings), sort_keys=False))
+    write_atomic(out / COMMAND_FILE, shlex.join(getattr(sys, "orig_argv", sys.argv)) + "\n")
     return RunFolder(out, path, existing)
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` so that a reader sees the old file or the new, never a part.
+
+    Several processes may resume one run folder at once (``ptrack tune --resume`` split by
+    controller): each rewrites ``config.yml`` while another reads it. A plain
+    ``write_text`` truncates first, and a reader in that window saw an empty config.
+    """
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def _check_same(old: Mapping[str, Any], new: Mapping[str, Any], free: Collection[str]) -> None:
