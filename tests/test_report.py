@@ -324,7 +324,7 @@ def test_a_search_at_gains_no_longer_shipped_is_labelled_stale(tmp_path):
     recorded rates (worst.yml) are the ones in agents/tuned."""
     import yaml
 
-    from agents.registry import tuned_rates
+    from agents.registry import still_tuned, tuned_rates
 
     folder = search_folder(tmp_path)
     pd.DataFrame([SEARCH_ROW]).to_csv(folder / "summary.csv", index=False)
@@ -343,3 +343,6 @@ def test_a_search_at_gains_no_longer_shipped_is_labelled_stale(tmp_path):
     assert "| Iiwa (tuned earlier, stale) | passivity |" in text
     assert "gains tuned earlier, stale" in text
     assert "Iiwa (tuned earlier, stale), impulse 2 J" in worst_case_sentence([folder])
+    assert still_tuned("iiwa", "passivity", shipped)
+    assert not still_tuned("iiwa", "passivity", {**shipped, "lam": shipped["lam"] * 2})
+    assert not still_tuned("iiwa", "no_such_controller", shipped)  # no tuned file: stale

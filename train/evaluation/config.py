@@ -187,6 +187,7 @@ class EvalConfig:
         this sweep, runs at other gains here than the residual was trained over (its run's
         ``base_gains``): an unfair pairing the sweep warns about (``ptrack study`` builds
         its sweeps with the runs' own gains)."""
+        from agents.registry import still_tuned
         from train.evaluation.policies import run_config, sb3_files
 
         lines = []
@@ -203,19 +204,18 @@ class EvalConfig:
                     f"{c} was trained over {base} at {gains} gains; {base} alone runs here at "
                     f"{self.gains} gains (the residual keeps its own base's)"
                 )
-            elif pinned and self.gains == "tuned" and dict(pinned) != self._tuned(base):
+            elif pinned and self.gains == "tuned" and not still_tuned(self._robot, base, pinned):
                 lines.append(
                     f"{c} was trained over {base} at tuned rates since retuned ({pinned}); "
                     f"{base} alone runs here at agents/tuned's (the residual keeps its own base's)"
                 )
         return lines
 
-    def _tuned(self, controller: str) -> dict[str, object]:
-        """``controller``'s rates in ``agents/tuned`` for this sweep's robot."""
-        from agents.registry import tuned_rates
+    @property
+    def _robot(self) -> str:
         from ptrack_gym.robots import profile_for_env_id
 
-        return tuned_rates(profile_for_env_id(self.env_id).name, controller)
+        return profile_for_env_id(self.env_id).name
 
     def settings(self) -> EpisodeSettings:
         return EpisodeSettings(

@@ -207,8 +207,7 @@ def stale_tuned_search(folder: Path, cfg: dict[str, Any]) -> bool:
     ``agents/tuned`` (read from its ``worst.yml``; a controller no longer tuned is stale)."""
     import yaml
 
-    from agents.registry import tuned_rates
-    from ptrack_gym.errors import InvalidConfigError
+    from agents.registry import still_tuned
     from ptrack_gym.robots import profile_for_env_id
 
     worst = folder / "worst.yml"
@@ -217,11 +216,7 @@ def stale_tuned_search(folder: Path, cfg: dict[str, Any]) -> bool:
     robot = profile_for_env_id(cfg["env_id"]).name
     for controller, families in (yaml.safe_load(worst.read_text()).get("worst") or {}).items():
         used = [cell.get("gains") for levels in families.values() for cell in levels.values()]
-        try:
-            now = tuned_rates(robot, controller)
-        except InvalidConfigError:
-            return True
-        if any(isinstance(g, dict) and g != now for g in used):
+        if any(isinstance(g, dict) and not still_tuned(robot, controller, g) for g in used):
             return True
     return False
 
