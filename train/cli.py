@@ -229,6 +229,12 @@ def _report_parser(p: argparse.ArgumentParser) -> None:
         help="another evaluation's results folder: print whether it ranks the controllers "
         "as each folder does (leaders and Kendall's tau per shared condition, both metrics)",
     )
+    p.add_argument(
+        "--publish",
+        metavar="NAME",
+        help="copy the (one) folder's report into the docs site: docs/results/NAME_report.md, "
+        "its figures to docs/figures/NAME_*.png, the image links rewritten",
+    )
 
 
 def results_kind(folder: Path) -> str:
@@ -255,6 +261,8 @@ def results_kind(folder: Path) -> str:
 def _report(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
     import yaml
 
+    if args.publish is not None and len(args.folders) != 1:
+        p.error("--publish takes one results folder")
     for folder in args.folders:
         kind = results_kind(folder)  # refuses a folder without results first
         saved = yaml.safe_load((folder / "config.yml").read_text())
@@ -277,6 +285,12 @@ def _report(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
             print(headline_of(folder, cfg.metric) + "\n")
             if args.against is not None:
                 print(agreement_of(folder, args.against) + "\n")
+        if args.publish is not None:
+            from train.evaluation.publish import publish_report
+
+            docs = Path(__file__).resolve().parents[1] / "docs"
+            for path in publish_report(folder, args.publish, docs):
+                print(f"published {path}")
     return 0
 
 
