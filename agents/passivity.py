@@ -72,6 +72,7 @@ from agents.passivity_gains import (  # the gains' names, re-exported: the law's
 from agents.passivity_kernel import OUT, law_step, law_tables
 from agents.passivity_sampling import (
     PHASE_DAMPING_LIMIT,
+    PUMP_LIMIT,
     max_period_s,
     phase_rate,
 )
@@ -286,7 +287,7 @@ class PassivityController:
 
     def max_period_s(self) -> float:
         """The longest control period (s) this controller serves on its path with its gains
-        (:func:`~agents.passivity_sampling.max_period_s`), the shorter of two:
+        (:func:`~agents.passivity_sampling.max_period_s`), the shortest of three:
 
         * springs: ω_max dt ≤ θ(c) (:func:`~agents.passivity_sampling.spring_angle_limit`:
           1 at the default c = 1, 1/√2 without a damper), ω_max the fastest mode of φ's
@@ -296,6 +297,9 @@ class PassivityController:
           c (ω dt)² < 2 (ω dt < √2 at c = 1); without a damper (the paper's law) an isolated
           mode grows at every period. The limit keeps a factor √2 inside either
           (``docs/control_rates.md``).
+        * virtual pump: k dt ≤ 1 (:data:`~agents.passivity_sampling.PUMP_LIMIT`), k the
+          pump gain: f_r's −k(ṡ − 1) in s̈ is stepped explicitly and grows once k dt > 2
+          (:func:`~agents.passivity_sampling.pump_growth`).
         * phase loop: c_phase dt ≤ 2 (:data:`~agents.passivity_sampling.PHASE_DAMPING_LIMIT`),
           c_phase = max_s (R + q_r'ᵀD q_r')/M_r(s) (:attr:`phase_rate_1_s`): the virtual
           system and the arm's motion along the path, damped against each other, keep ρ ≤ 1
@@ -305,7 +309,7 @@ class PassivityController:
         velocity turning of τ_r⁰ (held at the midpoint). Why each, with figures:
         ``docs/control_rates.md``."""
         d = float(np.min(self.d_diag / self.k_diag))  # D_j / K_j (s); c = d / dt
-        return max_period_s(self.mode_frequency_rad_s, d, self.phase_rate_1_s)
+        return max_period_s(self.mode_frequency_rad_s, d, self.phase_rate_1_s, self.gains.k_pump)
 
     def check_rate(self, dt_s: float) -> None:
         """Raise :class:`~ptrack_gym.errors.ControlRateError` if ``dt_s`` exceeds
@@ -315,7 +319,13 @@ class PassivityController:
         limit = self.max_period_s()
         if dt_s > limit * (1.0 + 1e-12):
             phase_limit = PHASE_DAMPING_LIMIT / self.phase_rate_1_s
-            if phase_limit <= limit * (1.0 + 1e-12):
+            k = self.gains.k_pump
+            if k > 0.0 and PUMP_LIMIT / k <= limit * (1.0 + 1e-12):
+                why = (
+                    f"its virtual pump k = {k:.4g} 1/s steps ṡ explicitly, {k * dt_s:.3g} per "
+                    f"period (at most {PUMP_LIMIT:g}); lower the pump (the gain rate 'lam')"
+                )
+            elif phase_limit <= limit * (1.0 + 1e-12):
                 why = (
                     f"its phase damping (R + q_r'ᵀD q_r')/M_r(s) reaches "
                     f"{self.phase_rate_1_s:.4g} 1/s on the path's slowest stretch, "

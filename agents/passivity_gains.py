@@ -13,7 +13,8 @@ period dt:
 then capped for the rate from the path's extremes (:func:`cap_for_rate`): K and D scaled
 together where the fastest coupled mode of M(q)⁻¹K on the path would turn more than 0.8 rad
 per sample, R lowered where (R + q_r'ᵀDq_r')/M_r(s) dt would exceed 1.6 on the slowest
-stretch. The rates are :data:`DEFAULT_RATES` updated by the robot profile's
+stretch, k_pump lowered where k_pump dt would exceed 0.8. The rates are
+:data:`DEFAULT_RATES` updated by the robot profile's
 ``controller_gains["passivity"]`` (ω, ω_s in rad/s; ρ, λ in 1/s; m_floor in kg·m²; c; γ in
 1/s and r̄ for the re-synchronisation); α = :data:`agents.gains.MAX_FREQUENCY_PER_SAMPLE`
 rad per sample (:func:`agents.gains.cap_stiffness`).
@@ -32,7 +33,7 @@ import numpy as np
 
 from agents.base import ControlContext, FloatArray
 from agents.gains import cap_stiffness, max_mode_frequency, rates
-from agents.passivity_sampling import PHASE_DAMPING_LIMIT, spring_angle_limit
+from agents.passivity_sampling import PHASE_DAMPING_LIMIT, PUMP_LIMIT, spring_angle_limit
 from agents.passivity_tables import PassivityTables, passivity_tables
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots.model import RobotModel, home_inertia_kgm2
@@ -248,7 +249,9 @@ def cap_for_rate(
       c = min_j D_j/(K_j dt) — what it would be at the period dt/0.8 (scaling K and D
       together keeps c); the per-joint cap reads M's diagonal at home only;
     * R lowered where needed so that (R + q_r'ᵀD q_r')/M_r(s) dt ≤ 0.8 · 2 on the path's
-      slowest stretch (the extremes of M_r(s), not its mean M̄_r that R = ρ M̄_r scales by).
+      slowest stretch (the extremes of M_r(s), not its mean M̄_r that R = ρ M̄_r scales by);
+    * the pump k lowered where needed so that k dt ≤ 0.8 (:data:`PUMP_LIMIT`: the virtual
+      system's pump term is stepped explicitly).
     """
     n = model.n
     stiffness = gains.stiffness(n)
@@ -268,6 +271,9 @@ def cap_for_rate(
     r_max = float(np.min(RATE_MARGIN * PHASE_DAMPING_LIMIT * m_r / dt_s - damper))
     if gains.R > r_max > 0.0:
         gains = dataclasses.replace(gains, R=r_max)
+    k_max = RATE_MARGIN * PUMP_LIMIT / dt_s
+    if gains.k_pump > k_max:
+        gains = dataclasses.replace(gains, k_pump=k_max)
     return gains
 
 

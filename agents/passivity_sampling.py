@@ -1,7 +1,7 @@
 """What a control period does to the passivity law: per-step growth factors of its fast loops.
 
 A digital controller evaluates the law at samples t_k = k dt and holds its torque until the
-next one (a zero-order hold). Three loops of the law are fast enough, on a path's slow
+next one (a zero-order hold). Four loops of the law are fast enough, on a path's slow
 stretches (small M_r(s)) or at a light wrist, to feel dt. Each has a closed-form map per
 control step, linearised on the reference (q = q_r(s), q̇ = q_r'(s), ṡ = σ̇ = 1, σ = s) and
 frozen at s; its spectral radius ρ is the factor by which a perturbation grows per step.
@@ -36,6 +36,14 @@ frozen at s; its spectral radius ρ is the factor by which a perturbation grows 
    and nothing in the paper's law damps a mode across the path; with
    c > ½, ρ < 1 iff c θ² < 2 (θ < √2 at c = 1): :func:`max_period_s`, the controller's
    stated rate limit, keeps θ ≤ :func:`spring_angle_limit` (c) (1 at c = 1, 1/√2 at c = 0).
+4. **The virtual pump** (the virtual system alone): f_r = −k H_r ṡ, H_r = ½M_r(ṡ² − 1),
+   adds −k ½(ṡ² − 1)ṡ ≈ −k(ṡ − 1) to s̈ near ṡ = 1. The implicit step covers a and c, not
+   this term: per step ṡ − 1 ↦ (1 − k dt)(ṡ − 1) (:func:`pump_growth`), ρ > 1 once
+   k dt > 2. k = λ/M̄_r is a rate of the path's mean inertia, not of the arm's energy loop
+   (that one, k M_r(s), is held at the midpoint), so a light arm with a stiff pump reaches
+   it first: the two-link at its fight-tuned λ = 23 1/s (M̄_r ≈ 0.08, k ≈ 300 1/s) diverged
+   undisturbed at 100 Hz on 5 of 12 random paths (k dt 2.8–5.7). The stated limit keeps
+   k dt ≤ :data:`PUMP_LIMIT` = 1 (monotone decay, a factor 2 inside the growth boundary).
 """
 
 from __future__ import annotations
@@ -73,6 +81,10 @@ ROWS = 128
 #: the range where the default scheme's phase loop keeps ρ ≤ 1 for a_K dt² ≤ 1 (what the
 #: spring limit allows; :func:`phase_growth`, ``docs/control_rates.md``).
 PHASE_DAMPING_LIMIT = 2.0
+
+#: The largest k dt (k the virtual pump's rate, loop 4) the rate limit admits: ṡ − 1 decays
+#: monotonically there; it grows per step once k dt > 2 (:func:`pump_growth`).
+PUMP_LIMIT = 1.0
 
 
 def _rows(tables: PassivityTables, count: int = ROWS) -> FloatArray:
@@ -207,12 +219,22 @@ def phase_rate(tables: PassivityTables, gains: PassivityGains) -> float:
     return float(np.max((gains.R + np.einsum("ij,j,ij->i", qd, gains.damping(n), qd)) / m_r))
 
 
+def pump_growth(k_pump: float, dt_s: float) -> float:
+    """Per-step factor |1 − k dt| of ṡ − 1 under the virtual pump alone (loop 4), stepped
+    explicitly; k the pump gain (1/s on the virtual side), dt the control period (s)."""
+    return abs(1.0 - k_pump * dt_s)
+
+
 def max_period_s(
-    omega_rad_s: float, damping_over_stiffness_s: float, phase_rate_1_s: float = 0.0
+    omega_rad_s: float,
+    damping_over_stiffness_s: float,
+    phase_rate_1_s: float = 0.0,
+    pump_rate_1_s: float = 0.0,
 ) -> float:
     """The longest dt with ω dt ≤ :func:`spring_angle_limit` (c) at c = d/dt, d = min_j
-    D_j/K_j (s), ω the fastest spring mode on the path (rad/s), and c_phase dt ≤
-    :data:`PHASE_DAMPING_LIMIT`, c_phase = :func:`phase_rate` (1/s). ω dt / θ(d/dt) grows
+    D_j/K_j (s), ω the fastest spring mode on the path (rad/s), c_phase dt ≤
+    :data:`PHASE_DAMPING_LIMIT`, c_phase = :func:`phase_rate` (1/s), and k dt ≤
+    :data:`PUMP_LIMIT`, k = ``pump_rate_1_s`` the virtual pump's gain. ω dt / θ(d/dt) grows
     with dt, so the springs' dt_max is 1/(ω² d) where that is ≤ d (there c ≥ 1), else the
     root of √2 ω dt² − dt − (√2 − 1) d = 0."""
     springs = math.inf
@@ -225,4 +247,5 @@ def max_period_s(
             a = math.sqrt(2.0) * omega_rad_s
             springs = (1.0 + math.sqrt(1.0 + 4.0 * a * (math.sqrt(2.0) - 1.0) * d)) / (2.0 * a)
     phase = PHASE_DAMPING_LIMIT / phase_rate_1_s if phase_rate_1_s > 0.0 else math.inf
-    return min(springs, phase)
+    pump = PUMP_LIMIT / pump_rate_1_s if pump_rate_1_s > 0.0 else math.inf
+    return min(springs, phase, pump)

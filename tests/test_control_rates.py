@@ -83,6 +83,47 @@ def test_default_and_tuned_gains_are_capped_inside_the_stated_limit(robot: str) 
             env.close()
 
 
+#: The two-link's passivity rates from its tuning fight (2026-11-26): λ = 23 1/s, a pump
+#: k = λ/M̄_r ≈ 300 1/s on a light arm, past the virtual pump's limit at 100 Hz.
+FIGHT_TWO_LINK_RATES = {"omega": 57.92491633527185, "omega_s": 56.57866496549456,
+                        "rho": 84.41182484028083, "lam": 23.26251552473542}  # fmt: skip
+
+
+def test_the_virtual_pump_limit_explains_the_100_hz_divergence(monkeypatch) -> None:
+    """The two-link at :data:`FIGHT_TWO_LINK_RATES`, random path 9004, 100 Hz, undisturbed:
+    the virtual system's pump term −k(ṡ − 1), stepped explicitly, grows per step once
+    k dt > 2 (here ≈ 3). With the pump limit removed from the controller's rate check, the
+    arm diverges; built as every entry point builds (k dt capped at 0.8) it tracks, and the
+    uncapped gains are refused at construction, naming λ."""
+    env, ctx, tables = _context("two_link", 100.0, 9004, episode_s=8.0)
+    capped = passivity.gains_from_rates(ctx, FIGHT_TWO_LINK_RATES, tables)
+    k = passivity.gains_from_rates(
+        dataclasses.replace(ctx, dt_s=1e-3), FIGHT_TWO_LINK_RATES, tables
+    ).k_pump  # the pump uncapped (k dt ≈ 0.3 at 1 kHz)
+    raw = dataclasses.replace(capped, k_pump=k)
+    dt = ctx.dt_s
+    assert k * dt > 2.0 and sampling.pump_growth(k, dt) > 1.0
+    assert capped.k_pump * dt == pytest.approx(0.8) and sampling.pump_growth(capped.k_pump, dt) < 1
+    with pytest.raises(ControlRateError, match=r"virtual pump .* \(the gain rate 'lam'\)"):
+        PassivityController(ctx.model, tables, raw, dt_s=dt)
+    record = _run(env, PassivityController(ctx.model, tables, capped, dt_s=dt))
+    assert not record.unstable and np.sqrt(np.mean(record.path_distance**2)) < 1e-3
+    unchecked = passivity.max_period_s  # the limit without loop 4
+    monkeypatch.setattr(passivity, "max_period_s", lambda w, d, c, k=0.0: unchecked(w, d, c))
+    assert _run(env, PassivityController(ctx.model, tables, raw, dt_s=dt)).unstable
+    env.close()
+
+
+def test_pump_growth_and_limit() -> None:
+    """|1 − k dt| crosses 1 at k dt = 2; the stated limit is k dt = 1, and the period limit
+    is the shortest of the loops'."""
+    assert sampling.pump_growth(100.0, 0.0199) < 1.0 < sampling.pump_growth(100.0, 0.0201)
+    assert sampling.pump_growth(100.0, 0.01) == 0.0
+    assert sampling.max_period_s(0.0, 0.0, 0.0, 250.0) == pytest.approx(1.0 / 250.0)
+    assert sampling.max_period_s(0.0, 0.0, 100.0, 250.0) == pytest.approx(1.0 / 250.0)
+    assert sampling.max_period_s(0.0, 0.0, 1000.0, 250.0) == pytest.approx(2.0 / 1000.0)
+
+
 def test_a_period_past_the_limit_is_refused_at_construction_not_at_run_time() -> None:
     """Gains too stiff for 100 Hz: building the controller for 100 Hz raises
     ControlRateError naming the limit and what to change; built without a period, its
