@@ -116,6 +116,21 @@ def test_a_missing_file_is_a_usage_error_and_a_failure_is_status_1(
     )
 
 
+def test_an_interrupted_command_says_how_to_continue(monkeypatch, capsys, tmp_path) -> None:
+    """Ctrl-C (or a scheduler's SIGINT) in any command: no traceback, status 130, and the
+    message names --resume (the sweeps, tunings and searches append their results)."""
+
+    def interrupted(args, parser):
+        raise KeyboardInterrupt
+
+    summary, build, _ = COMMANDS["report"]
+    monkeypatch.setitem(COMMANDS, "report", (summary, build, interrupted))
+    assert main(["report", str(tmp_path)]) == 130
+    err = capsys.readouterr().err
+    assert err.startswith("ptrack report: interrupted;") and "--resume" in err
+    assert "Traceback" not in err
+
+
 def test_report_against_another_sweep_prints_how_alike_they_rank(capsys) -> None:
     main_job = ROOT / "docs" / "results" / "main"
     assert main(["report", str(main_job), "--no-rewrite", "--against", str(main_job)]) == 0

@@ -404,7 +404,8 @@ def _top_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``ptrack`` with ``argv`` (default: the process's arguments); return the exit
-    status. A :class:`~ptrack_gym.errors.PtrackError` is a usage error (status 2, one line).
+    status. A :class:`~ptrack_gym.errors.PtrackError` is a usage error (status 2, one line);
+    an interruption (Ctrl-C, SIGINT) says how to continue and returns 130.
     Only the command's own modules are imported (``ptrack --help`` stays quick)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] not in COMMANDS:
@@ -426,6 +427,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     except FileNotFoundError as exc:  # a path the user gave
         parser.error(f"{exc.filename}: no such file or folder")
+    except KeyboardInterrupt:  # Ctrl-C, or SIGINT from a scheduler's time limit
+        print(
+            f"ptrack {command}: interrupted; what it wrote is kept (its results files are "
+            "appended as it goes; the same command with --resume continues)",
+            file=sys.stderr,
+        )
+        return 130
     except Exception as exc:  # a run-time failure: one line, status 1
         if os.environ.get("PTRACK_TRACEBACK"):
             raise
