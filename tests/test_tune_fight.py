@@ -179,8 +179,54 @@ def test_the_winner_is_the_best_seed_and_the_spread_is_max_minus_min_over_median
     # the trials of a seed without a feasible one were spent too
     spent = winner(cfg, "computed_torque", {0: seed(2e-3, 10.0), 2: None}, 0.3, spent=25)
     assert spent["trials"] == 25 and spent["env_steps"] == 25 * (3 * 5) * 6000
-    with pytest.raises(InvalidConfigError, match="no trial met the effort budget"):
+    with pytest.raises(InvalidConfigError, match="no trial completed"):
         winner(cfg, "computed_torque", {0: None}, 0.3)
+
+
+def test_a_seed_within_the_budget_beats_any_over_it_and_with_none_the_least_over_wins():
+    def seed(error: float, effort: float, over: bool) -> dict:
+        return {
+            "error_rad": error, "effort": effort, "failures": 0, "over_budget": over,
+            "rates": {"omega": 1.0 / error, "zeta": 1.0}, "trial": "x", "trials": 10,
+            "feasible_trials": 0 if over else 3, "widenings": 0, "box": {}, "on_bound": [],
+            "on_bound_why": {}, "wall_s": 1.0,
+        }  # fmt: skip
+
+    cfg = TuneConfig(trials=10, trials_per_rate=1)
+    mixed = {0: seed(1e-4, 0.5, True), 1: seed(3e-3, 0.29, False), 2: seed(2e-3, 0.3, False)}
+    best = winner(cfg, "computed_torque", mixed, 0.3)
+    assert best["seed"] == 2 and not best["over_budget"]  # a lower J over budget cannot win
+    over = {0: seed(1e-4, 0.5, True), 1: seed(3e-3, 0.35, True), 2: seed(2e-3, 0.4, True)}
+    best = winner(cfg, "computed_torque", over, 0.3)
+    assert best["seed"] == 1 and best["over_budget"] and best["effort"] == 0.35
+    text = fight_markdown({"computed_torque": best}, "t")
+    assert "over budget by 16.7 %" in text
+
+
+class Heavy(Bowl):
+    """A :class:`Bowl` whose effort falls with ω towards 0.7 but never to the budget (1.25 ×
+    the reference's 0.5 = 0.625): no trial is feasible."""
+
+    def score(self, controller, rates):
+        base = super().score(controller, rates)
+        if rates is None:
+            return base
+        return TrialScore(base.error_rad, 0.7 + 1.0 / rates["omega"], 0)
+
+
+def test_a_controller_that_never_meets_the_budget_is_tuned_at_its_least_over_budget_trial(
+    tmp_path,
+):
+    out = tmp_path / "fight"
+    result = tune(fight(out, study_seeds=[0, 1]), progress=False, objective=Heavy(30.0, 1.2))
+    best = result["computed_torque"]
+    assert best["over_budget"] and best["feasible_trials"] == 0
+    trials = [t for ts in _journal_studies(out).values() for t in ts]
+    efforts = [t.user_attrs["effort"] for t in trials]
+    assert min(efforts) > best["effort_budget"]  # nothing was feasible
+    assert best["effort"] == pytest.approx(min(efforts))  # the least over budget won
+    assert all(r["over_budget"] for r in best["seeds"].values())
+    assert "over budget by" in (out / "fight.md").read_text()
 
 
 # -- boxes -----------------------------------------------------------------------------------

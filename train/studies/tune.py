@@ -29,9 +29,12 @@ controller, so that a ranking of tuned controllers is a ranking of laws, not of 
   own reference phase s at ṡ = 1 — the feedback part of the torque, which a gain buys
   (the feed-forward is the same for every model-based law and made τ_dyn's budget hardly
   bind); ``tau_dyn_rms_frac``, the RMS of (τ − g(q))/τ_max, is still selectable. TPE
-  samples with the constraint; only feasible trials can win;
+  samples with the constraint; a feasible trial beats every infeasible one;
 * winner — per seed its best feasible trial; the gains saved are the best of those over the
-  seeds (the lowest J: every seed scores on the same validation episodes). The seeds'
+  seeds (the lowest J: every seed scores on the same validation episodes). A controller
+  none of whose trials meets the budget is tuned at its
+  least-over-budget trial (lowest effort, then J; Optuna's order for infeasible trials),
+  flagged ``over_budget`` with the excess in every table, never dropped. The seeds'
   disagreement is reported: spread = (max − min)/median of the per-seed bests, and for the
   fight the controllers' ranking per seed and Kendall's τ between seeds
   (:mod:`train.studies.tune_fight`, ``fight.md``);

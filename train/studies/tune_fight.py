@@ -102,6 +102,16 @@ def per_seed_objectives(results: Mapping[str, Mapping[str, Any]]) -> dict[str, d
     }
 
 
+def effort_text(result: Mapping[str, Any]) -> str:
+    """"effort (budget)", with "over budget by x %" for a controller no trial of which met
+    the budget (its least-over-budget trial won: :func:`train.studies.tune_study.winner`)."""
+    effort, budget = float(result["effort"]), float(result["effort_budget"])
+    text = f"{effort:.4f} ({budget:.4f})"
+    if result.get("over_budget"):
+        text += f" **over budget by {100 * (effort / budget - 1):.1f} %**"
+    return text
+
+
 def fight_markdown(results: Mapping[str, Mapping[str, Any]], title: str) -> str:
     """``fight.md``: per controller its best objective, per-seed objectives, spread, trials,
     effort and rates on a bound; each seed's ranking and their stability."""
@@ -112,7 +122,8 @@ def fight_markdown(results: Mapping[str, Mapping[str, Any]], title: str) -> str:
         f"# {title}",
         "",
         "Objective: geometric mean path-distance RMS (rad) on the validation episodes; the "
-        "best feasible trial over all study seeds wins (train/studies/tune.py).",
+        "best feasible trial over all study seeds wins (train/studies/tune.py); a controller "
+        "with no trial within the effort budget is tuned at its least-over-budget trial.",
         "",
         f"| controller | best (rad) | {head} | spread | trials | env steps | effort (budget) "
         "| on bound |",
@@ -123,7 +134,7 @@ def fight_markdown(results: Mapping[str, Mapping[str, Any]], title: str) -> str:
         bound = ", ".join(f"{k} ({v})" for k, v in (res.get("on_bound_why") or {}).items()) or "–"
         lines.append(
             f"| {c} | {res['error_rad']:.3g} | {cells} | {res['spread']:.2f} | {res['trials']} "
-            f"| {res.get('env_steps', '–')} | {res['effort']:.4f} ({res['effort_budget']:.4f}) "
+            f"| {res.get('env_steps', '–')} | {effort_text(res)} "
             f"| {bound} |"
         )
     lines += ["", "Rankings (best first):", ""]
@@ -173,7 +184,7 @@ def tuned_table(tuned_dir: Path = TUNED_DIR) -> str:
         lines.append(
             f"| {robot} | {controller} | {tuned_text} | {default_text} "
             f"| {study['error_rad']:.3g} | {seed_text} | {spread_text} "
-            f"| {study['effort']:.4f} ({study['effort_budget']:.4f}) "
+            f"| {effort_text(study)} "
             f"| {study['feasible_trials']}/{study['trials']} | {study['wall_s']:.0f} "
             f"| {bound_text} |"
         )

@@ -113,7 +113,10 @@ class SeedStudies:
     def seed_result(self, controller: str, seed: int) -> dict[str, Any] | None:
         """The best feasible trial of ``controller``'s study seed ``seed`` over its rounds
         (each widening one), with the rates on a bound of the last box and why they stay
-        there; None if no trial was feasible."""
+        there. A seed none of whose trials meets the budget gives its least-over-budget
+        trial (lowest effort, then lowest J — the order Optuna's constrained samplers rank
+        infeasible trials by), marked ``over_budget``, and widens around it like a feasible
+        winner; None if no trial completed."""
         cfg, box = self.cfg, self._start_box(controller, seed)
         last = cfg.max_widenings if cfg.widen_on_bound else 0
         if self.progress:
@@ -124,10 +127,9 @@ class SeedStudies:
         study, best, round_ = None, None, 0
         for round_ in range(last + 1):
             study = self._round(controller, seed, round_, box, study)
-            feasible = [t for t in _complete(self.optuna, study) if self._feasible(t)]
-            if not feasible:
+            best = self._best(_complete(self.optuna, study))
+            if best is None:
                 break
-            best = min(feasible, key=lambda t: t.value)
             if round_ == last:
                 break
             widen = self._widen(controller, best.params, box, stuck)
@@ -144,6 +146,7 @@ class SeedStudies:
             "error_rad": float(best.value),
             "effort": float(best.user_attrs["effort"]),
             "failures": int(best.user_attrs["failures"]),
+            "over_budget": not self._feasible(best),
             "rates": {k: float(v) for k, v in best.params.items()},
             "trial": best.user_attrs.get("copied_from", f"{study.study_name}#{best.number}"),
             "trials": len(new),
@@ -225,6 +228,14 @@ class SeedStudies:
 
     def _feasible(self, trial: Any) -> bool:
         return bool(trial.user_attrs["effort"] <= self.budget)
+
+    def _best(self, trials: Sequence[Any]) -> Any:
+        """The lowest-J feasible trial of ``trials``; with none feasible, the least over
+        budget (lowest effort, then J); None for no trials."""
+        feasible = [t for t in trials if self._feasible(t)]
+        if feasible:
+            return min(feasible, key=lambda t: t.value)
+        return min(trials, key=lambda t: (t.user_attrs["effort"], t.value), default=None)
 
     def _widen(
         self, controller: str, rates: Mapping[str, float], box: Box, stuck: dict[str, str]
@@ -365,16 +376,18 @@ def winner(
     budget: float,
     spent: int | None = None,
 ) -> dict[str, Any]:
-    """The result of ``controller``: the best of its seeds' winners (lowest J), the seeds'
-    spread, every seed's best, and the totals — ``spent``, the new trials of every seed
+    """The result of ``controller``: the best of its seeds' winners (lowest J among those
+    within the budget; if none is, the least over it, ``over_budget``), the seeds' spread, every seed's best, and the totals — ``spent``, the new trials of every seed
     (those without a feasible one too; None: the found seeds' counts), makes ``trials`` and
     ``env_steps`` what the fight spent."""
     found = {s: r for s, r in seeds.items() if r is not None}
     if not found:
-        raise InvalidConfigError(
-            f"{controller}: no trial met the effort budget {budget:.4g} in any study seed"
-        )
-    seed = min(found, key=lambda s: (found[s]["error_rad"], s))
+        raise InvalidConfigError(f"{controller}: no trial completed in any study seed")
+    within = {s: r for s, r in found.items() if not r.get("over_budget", False)}
+    if within:  # the best feasible seed result
+        seed = min(within, key=lambda s: (within[s]["error_rad"], s))
+    else:  # no seed met the budget: the least over it (the seeds' own rule)
+        seed = min(found, key=lambda s: (found[s]["effort"], found[s]["error_rad"], s))
     trials = spent if spent is not None else sum(r["trials"] for r in found.values())
     w = found[seed]
     return {
@@ -383,6 +396,7 @@ def winner(
         "error_rad": w["error_rad"],
         "effort": w["effort"],
         "failures": w["failures"],
+        "over_budget": bool(w.get("over_budget", False)),
         "seed": int(seed),
         "trial": w["trial"],
         "trials_per_study": cfg.study_trials(controller),
