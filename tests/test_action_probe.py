@@ -42,7 +42,8 @@ def _train(out: Path, extra: list[str]) -> Path:
     train_main(
         [*extra, "--algo", "sac", "--steps", "200", "--out", str(out), "--seed", "0",
          "--episode-s", "0.2", "--eval-freq", "0", "--checkpoint-freq", "0",
-         "--hp", "learning_starts=50", "--hp", "buffer_size=1000", "--hp", "policy_kwargs=dict(net_arch=[16])"]
+         "--hp", "learning_starts=50", "--hp", "buffer_size=1000",
+         "--hp", "policy_kwargs=dict(net_arch=[16])"]
     )  # fmt: skip
     return out
 

@@ -242,8 +242,9 @@ def test_a_tank_residual_trains_and_is_evaluated_with_its_tank(tmp_path):
     def argv(out, *extra):
         return ["--algo", "sac", "--residual", "passivity", "--steps", "100", "--out", str(out),
                 "--episode-s", "0.2", "--eval-freq", "1000", "--checkpoint-freq", "1000",
-                "--disturbance", "periodic:0.5", "--hp", "learning_starts=50", "--hp", "buffer_size=1000", "--hp",
-                "batch_size=16", "--hp", "policy_kwargs=dict(net_arch=[16])", *extra]  # fmt: skip
+                "--disturbance", "periodic:0.5", "--hp", "learning_starts=50", "--hp",
+                "buffer_size=1000", "--hp", "batch_size=16", "--hp",
+                "policy_kwargs=dict(net_arch=[16])", *extra]  # fmt: skip
 
     out = tmp_path / "run"
     run(parse_args(argv(out, "--tank", "--tank-beta", "0.8")))

@@ -425,7 +425,8 @@ def test_a_trained_residual_model_is_evaluated_like_a_controller(tmp_path) -> No
     train_main(
         ["--algo", "sac", "--residual", "passivity", "--steps", "200", "--out", str(run_dir),
          "--episode-s", "0.2", "--eval-freq", "0", "--checkpoint-freq", "100",
-         "--hp", "learning_starts=50", "--hp", "buffer_size=1000", "--hp", "policy_kwargs=dict(net_arch=[16])"]
+         "--hp", "learning_starts=50", "--hp", "buffer_size=1000",
+         "--hp", "policy_kwargs=dict(net_arch=[16])"]
     )  # fmt: skip
     final, early, latest = f"sb3:{run_dir}", f"sb3:{run_dir}@100", f"sb3:{run_dir}@200"
     controllers = f"controllers=[computed_torque, {final}, {early}, {latest}]"

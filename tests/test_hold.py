@@ -140,7 +140,8 @@ def test_a_run_trains_on_decisions_and_is_evaluated_holding_them(tmp_path) -> No
     out = tmp_path / "run"
     main(["--algo", "sac", "--residual", "passivity", "--steps", "60", "--out", str(out),
           "--episode-s", "0.2", "--eval-freq", "0", "--decision-every", "5", "--zero-init-residual",
-          "--hp", "learning_starts=20", "--hp", "buffer_size=1000", "--hp", "policy_kwargs=dict(net_arch=[16])"])  # fmt: skip
+          "--hp", "learning_starts=20", "--hp", "buffer_size=1000",
+          "--hp", "policy_kwargs=dict(net_arch=[16])"])  # fmt: skip
     monitor = pd.read_csv(next(out.glob("monitor/*/*.monitor.csv")), skiprows=1)
     assert (monitor["l"] == 10).all() and len(monitor) == 6
     settings = EpisodeSettings(

@@ -31,7 +31,8 @@ def _train(out: Path, residual: str, seed: int) -> None:
         [*zero_init, "--algo", "sac", "--residual", residual, "--steps", "200", "--out", str(out),
          "--seed", str(seed), "--disturbance", "periodic:1.0", "--episode-s", "0.2",
          "--eval-freq", "100", "--eval-episodes", "1", "--checkpoint-freq", "100",
-         "--hp", "learning_starts=50", "--hp", "buffer_size=1000", "--hp", "policy_kwargs=dict(net_arch=[16])"]
+         "--hp", "learning_starts=50", "--hp", "buffer_size=1000",
+         "--hp", "policy_kwargs=dict(net_arch=[16])"]
     )  # fmt: skip
 
 

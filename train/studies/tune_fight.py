@@ -103,7 +103,7 @@ def per_seed_objectives(results: Mapping[str, Mapping[str, Any]]) -> dict[str, d
 
 
 def effort_text(result: Mapping[str, Any]) -> str:
-    """"effort (budget)", with "over budget by x %" for a controller no trial of which met
+    """The "effort (budget)" cell, with "over budget by x %" for a controller no trial of which met
     the budget (its least-over-budget trial won: :func:`train.studies.tune_study.winner`)."""
     effort, budget = float(result["effort"]), float(result["effort_budget"])
     text = f"{effort:.4f} ({budget:.4f})"

@@ -377,8 +377,9 @@ def winner(
     spent: int | None = None,
 ) -> dict[str, Any]:
     """The result of ``controller``: the best of its seeds' winners (lowest J among those
-    within the budget; if none is, the least over it, ``over_budget``), the seeds' spread, every seed's best, and the totals — ``spent``, the new trials of every seed
-    (those without a feasible one too; None: the found seeds' counts), makes ``trials`` and
+    within the budget; if none is, the least over it, ``over_budget``), the seeds' spread,
+    every seed's best, and the totals — ``spent``, the new trials of every seed (those
+    without a feasible one too; None: the found seeds' counts), makes ``trials`` and
     ``env_steps`` what the fight spent."""
     found = {s: r for s, r in seeds.items() if r is not None}
     if not found:
