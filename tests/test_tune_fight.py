@@ -218,10 +218,16 @@ def test_a_controller_that_never_meets_the_budget_is_tuned_at_its_least_over_bud
     tmp_path,
 ):
     out = tmp_path / "fight"
-    result = tune(fight(out, study_seeds=[0, 1]), progress=False, objective=Heavy(30.0, 1.2))
+    cfg = fight(out, study_seeds=[0, 1], widen_on_bound=True, trials=20)
+    result = tune(cfg, progress=False, objective=Heavy(30.0, 1.2))
     best = result["computed_torque"]
     assert best["over_budget"] and best["feasible_trials"] == 0
-    trials = [t for ts in _journal_studies(out).values() for t in ts]
+    # each seed's least effort sits at ω's upper edge (20 trials find it), yet no seed
+    # widened: widening follows an optimum of J within the budget, which it has not found
+    assert all(r["on_bound"] == ["omega"] for r in best["seeds"].values())
+    studies = _journal_studies(out)
+    assert set(studies) == {study_name("computed_torque", s) for s in (0, 1)}
+    trials = [t for ts in studies.values() for t in ts]
     efforts = [t.user_attrs["effort"] for t in trials]
     assert min(efforts) > best["effort_budget"]  # nothing was feasible
     assert best["effort"] == pytest.approx(min(efforts))  # the least over budget won

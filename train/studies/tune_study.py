@@ -115,8 +115,9 @@ class SeedStudies:
         (each widening one), with the rates on a bound of the last box and why they stay
         there. A seed none of whose trials meets the budget gives its least-over-budget
         trial (lowest effort, then lowest J — the order Optuna's constrained samplers rank
-        infeasible trials by), marked ``over_budget``, and widens around it like a feasible
-        winner; None if no trial completed."""
+        infeasible trials by), marked ``over_budget``, and is not widened: widening follows
+        an optimum of J within the budget, which such a seed has not found; None if no
+        trial completed."""
         cfg, box = self.cfg, self._start_box(controller, seed)
         last = cfg.max_widenings if cfg.widen_on_bound else 0
         if self.progress:
@@ -128,9 +129,7 @@ class SeedStudies:
         for round_ in range(last + 1):
             study = self._round(controller, seed, round_, box, study)
             best = self._best(_complete(self.optuna, study))
-            if best is None:
-                break
-            if round_ == last:
+            if best is None or not self._feasible(best) or round_ == last:
                 break
             widen = self._widen(controller, best.params, box, stuck)
             if not widen:
