@@ -97,8 +97,8 @@ def test_the_main_job_compares_tuned_gains_on_enough_seeds() -> None:
     strict=True,
     raises=InvalidConfigError,
     reason="the tuning fights (train/configs/tune/tune_fight_*.yml) have not run on every "
-    "robot: no tuned gains for the Panda and the xArm6 (strict: once they exist this passes, "
-    "and the mark must go)",
+    "robot: no tuned gains for the xArm6 (strict: once they exist this passes, and the mark "
+    "must go)",
 )
 def test_the_verdict_has_tuned_gains_on_every_robot(monkeypatch) -> None:
     """The verdict and the unboxed worst-case searches (``worst_<robot>.yml``) at tuned gains."""

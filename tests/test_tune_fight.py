@@ -225,6 +225,8 @@ def test_a_controller_that_never_meets_the_budget_is_tuned_at_its_least_over_bud
     # each seed's least effort sits at ω's upper edge (20 trials find it), yet no seed
     # widened: widening follows an optimum of J within the budget, which it has not found
     assert all(r["on_bound"] == ["omega"] for r in best["seeds"].values())
+    assert all("not widened: no trial within the effort budget" in r["on_bound_why"]["omega"]
+               for r in best["seeds"].values())  # fmt: skip
     studies = _journal_studies(out)
     assert set(studies) == {study_name("computed_torque", s) for s in (0, 1)}
     trials = [t for ts in studies.values() for t in ts]

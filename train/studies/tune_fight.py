@@ -123,7 +123,8 @@ def fight_markdown(results: Mapping[str, Mapping[str, Any]], title: str) -> str:
         "",
         "Objective: geometric mean path-distance RMS (rad) on the validation episodes; the "
         "best feasible trial over all study seeds wins (train/studies/tune.py); a controller "
-        "with no trial within the effort budget is tuned at its least-over-budget trial.",
+        "with no trial within the effort budget is tuned at its least-over-budget trial (its "
+        "best and per-seed columns are then those trials' errors, not the lowest).",
         "",
         f"| controller | best (rad) | {head} | spread | trials | env steps | effort (budget) "
         "| on bound |",

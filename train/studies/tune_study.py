@@ -139,13 +139,16 @@ class SeedStudies:
         if best is None:
             return None
         hits = bounds_hit(best.params, box)
-        why = {name: f"{side}, {self._why(controller, best.params, box, name, side, stuck, round_)}"
+        over = not self._feasible(best)
+        why = {name: f"{side}, " + ("not widened: no trial within the effort budget" if over
+                                   else self._why(controller, best.params, box, name, side,
+                                                  stuck, round_))
                for name, side in sorted(hits.items())}  # fmt: skip
         return {
             "error_rad": float(best.value),
             "effort": float(best.user_attrs["effort"]),
             "failures": int(best.user_attrs["failures"]),
-            "over_budget": not self._feasible(best),
+            "over_budget": over,
             "rates": {k: float(v) for k, v in best.params.items()},
             "trial": best.user_attrs.get("copied_from", f"{study.study_name}#{best.number}"),
             "trials": len(new),
