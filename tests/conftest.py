@@ -4,6 +4,7 @@ path seed made to have no admissible random path."""
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -67,3 +68,19 @@ def no_admissible_path(monkeypatch: pytest.MonkeyPatch) -> Callable[[int], None]
 
     monkeypatch.setattr(paths, "random_multisine", picky)
     return refused.add
+
+
+@pytest.fixture
+def without_panda_gains(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``agents/tuned`` without the Panda's files, for tests that ask for tuned gains on a
+    robot that has none (the shipped files cover every robot once its fight has run)."""
+    import shutil
+
+    import agents.registry as registry
+
+    tuned = tmp_path / "tuned_without_panda"
+    tuned.mkdir()
+    for f in registry.TUNED_DIR.glob("*.yml"):
+        if not f.name.startswith("panda-"):
+            shutil.copy(f, tuned / f.name)
+    monkeypatch.setattr(registry, "TUNED_DIR", tuned)

@@ -275,21 +275,6 @@ def _dummy():  # type: ignore[no-untyped-def]
     return DummyVecEnv([_env])
 
 
-def _without_panda_gains(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """agents/tuned without the Panda's files: the cases below ask for tuned gains on a robot
-    that has none (the shipped files cover every robot once its fight has run)."""
-    import shutil
-
-    import agents.registry as registry
-
-    tuned = tmp_path / "tuned"
-    tuned.mkdir()
-    for f in registry.TUNED_DIR.glob("*.yml"):
-        if not f.name.startswith("panda-"):
-            shutil.copy(f, tuned / f.name)
-    monkeypatch.setattr(registry, "TUNED_DIR", tuned)
-
-
 @pytest.mark.parametrize(
     "fields",
     [
@@ -313,9 +298,8 @@ def _without_panda_gains(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Non
     ],
 )
 def test_bad_imitation_options_raise_before_anything_runs(
-    tmp_path: Path, fields: dict, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, fields: dict, without_panda_gains: None
 ) -> None:
-    _without_panda_gains(tmp_path, monkeypatch)
     ok = {"init_log_std": -6.0, "overrides": {"learning_starts": 0}}
     validate(TrainConfig(out=str(tmp_path / "ok"), imitate="pd_gravity", **ok))  # the base is fine
     with pytest.raises(TrainConfigError):

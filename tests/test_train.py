@@ -513,21 +513,6 @@ def test_acceleration_authority_reaches_the_training_env(tmp_path: Path) -> None
         env.close()
 
 
-def _without_panda_gains(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """agents/tuned without the Panda's files: the cases below ask for tuned gains on a robot
-    that has none (the shipped files cover every robot once its fight has run)."""
-    import shutil
-
-    import agents.registry as registry
-
-    tuned = tmp_path / "tuned"
-    tuned.mkdir()
-    for f in registry.TUNED_DIR.glob("*.yml"):
-        if not f.name.startswith("panda-"):
-            shutil.copy(f, tuned / f.name)
-    monkeypatch.setattr(registry, "TUNED_DIR", tuned)
-
-
 @pytest.mark.parametrize(
     "extra",
     [
@@ -555,9 +540,8 @@ def _without_panda_gains(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Non
     ],
 )
 def test_bad_safeguard_options_raise_before_anything_runs(
-    tmp_path: Path, extra: list[str], monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, extra: list[str], without_panda_gains: None
 ) -> None:
-    _without_panda_gains(tmp_path, monkeypatch)
     args = ["--out", str(tmp_path / "x"), "--residual", "passivity", *extra]
     with pytest.raises(TrainConfigError):
         validate(parse_args(args))
