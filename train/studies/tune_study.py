@@ -232,12 +232,12 @@ class SeedStudies:
         return bool(trial.user_attrs["effort"] <= self.budget)
 
     def _best(self, trials: Sequence[Any]) -> Any:
-        """The lowest-J feasible trial of ``trials``; with none feasible, the least over
-        budget (lowest effort, then J); None for no trials."""
-        feasible = [t for t in trials if self._feasible(t)]
-        if feasible:
-            return min(feasible, key=lambda t: t.value)
-        return min(trials, key=lambda t: (t.user_attrs["effort"], t.value), default=None)
+        """The first of ``trials`` in :func:`budget_order`; None for no trials."""
+        return min(
+            trials,
+            key=lambda t: budget_order(self._feasible(t), t.value, t.user_attrs["effort"]),
+            default=None,
+        )
 
     def _widen(
         self, controller: str, rates: Mapping[str, float], box: Box, stuck: dict[str, str]
@@ -371,6 +371,13 @@ def _new_trials(optuna: Any, storage: Any, controller: str, seed: int, rounds: i
     return out
 
 
+def budget_order(feasible: bool, error_rad: float, effort: float) -> tuple[float, ...]:
+    """The sort key of the tuner's one rule for a trial or a seed's result: every one within
+    the effort budget first, by J (rad); then the rest, least effort first, then J — the
+    order Optuna's constrained samplers give infeasible trials."""
+    return (0.0, error_rad) if feasible else (1.0, effort, error_rad)
+
+
 def winner(
     cfg: TuneConfig,
     controller: str,
@@ -386,11 +393,9 @@ def winner(
     found = {s: r for s, r in seeds.items() if r is not None}
     if not found:
         raise InvalidConfigError(f"{controller}: no trial completed in any study seed")
-    within = {s: r for s, r in found.items() if not r.get("over_budget", False)}
-    if within:  # the best feasible seed result
-        seed = min(within, key=lambda s: (within[s]["error_rad"], s))
-    else:  # no seed met the budget: the least over it (the seeds' own rule)
-        seed = min(found, key=lambda s: (found[s]["effort"], found[s]["error_rad"], s))
+    seed = min(found, key=lambda s: (*budget_order(
+        not found[s].get("over_budget", False), found[s]["error_rad"], found[s]["effort"]
+    ), s))  # fmt: skip
     trials = spent if spent is not None else sum(r["trials"] for r in found.values())
     w = found[seed]
     return {
