@@ -42,6 +42,13 @@ def test_a_tiny_study_runs_pairs_by_path_and_seed_and_resumes(tmp_path):
     assert (agg["paths"] == 2).all() and (agg["episodes"] == 6).all()
     text = (out / "verdict.md").read_text()
     assert "| two_link | path distance |" in text and "## two_link" in text
+    # path by path: each path's own test on its 3 seeds, every condition counted once
+    paths = pd.read_csv(out / "paths.csv")
+    assert len(paths) == 2 * 2 and set(paths["path"]) == {1, 2}
+    assert (paths["pairs"] == 3).all()
+    assert (paths[["wins", "ties", "losses"]].sum(axis=1) == paths["conditions"]).all()
+    assert (paths["conditions"] == 2).all()
+    assert "Path by path" in text and (out / "verdict.png").stat().st_size > 0
 
     # an interrupted run: drop the last 5 rows; the resume runs exactly those again
     lines = (out / "episodes.csv").read_text().splitlines(keepends=True)
@@ -63,6 +70,52 @@ def test_a_tiny_study_runs_pairs_by_path_and_seed_and_resumes(tmp_path):
     pd.testing.assert_frame_equal(
         again.drop(columns="wall_s"), df.drop(columns="wall_s"), check_exact=True
     )
+
+
+def test_a_paths_features_are_those_of_the_path_its_env_builds():
+    import gymnasium as gym
+
+    from ptrack_gym.robots import ROBOTS
+
+    for robot, seed in (("two_link", 3), ("iiwa", 1)):
+        feats = vs.path_features(robot, seed)
+        env = gym.make(ROBOTS[robot].env_id, path="random", path_seed=seed)
+        try:
+            path = env.unwrapped.path
+            q = path.evaluate(np.linspace(0.0, path.period_s, 512, endpoint=False))[0]
+        finally:
+            env.close()
+        assert feats["period_s"] == path.period_s and 4.0 <= feats["period_s"] <= 8.0
+        assert feats["amplitude_rad"] == pytest.approx(np.ptp(q, axis=0).max() / 2, rel=1e-12)
+
+
+def test_path_outcomes_are_the_rival_test_on_each_paths_pairs_alone():
+    """A path where the focus is clearly lower everywhere counts wins, one where it is
+    clearly higher counts losses: the per-path test does not pool the paths."""
+    from train.studies.verdict_study import path_outcomes
+
+    rng = np.random.default_rng(0)
+    rows = []
+    for path, focus_scale in (("1", 0.5), ("2", 2.0)):
+        for dist in ("none", "impulse"):
+            for seed in range(10):
+                base = 1.0 + 0.05 * rng.standard_normal()
+                for ctrl, scale in (("passivity", focus_scale), ("computed_torque", 1.0),
+                                    ("pd_gravity", 3.0)):  # fmt: skip
+                    value = base * scale
+                    rows.append({"robot": "two_link", "path": path, "controller": ctrl,
+                                 "disturbance": dist, "level": 1.0, "seed": seed, "episode": 0,
+                                 "path_dist_rms": value, "time_err_rms": value})  # fmt: skip
+    cfg = VerdictConfig(robots=["two_link"], controllers=["passivity", "computed_torque",
+                        "pd_gravity"], gains="default", resamples=2000)  # fmt: skip
+    out = path_outcomes(cfg, pd.DataFrame(rows)).set_index(["path", "metric"])
+    assert (
+        out.loc[(1, "path_dist_rms"), "wins"] == 2 and out.loc[(1, "path_dist_rms"), "losses"] == 0
+    )
+    assert (
+        out.loc[(2, "path_dist_rms"), "losses"] == 2 and out.loc[(2, "path_dist_rms"), "wins"] == 0
+    )
+    assert out.loc[(2, "time_err_rms"), "ratio_median"] == pytest.approx(2.0)
 
 
 def test_an_existing_study_is_refused_without_resume_or_force(tmp_path):

@@ -3,7 +3,7 @@ PNG files; each figure a function of results alone (a sweep's worker processes d
 
 * :mod:`train.plots.evaluation` — a sweep's robustness, failure, example and aggregate
   figures;
-* :mod:`train.plots.studies` — fronts, adversarial search, control rates;
+* :mod:`train.plots.studies` — fronts, adversarial search, control rates, the verdict;
 * :mod:`train.plots.rl` — learning curves.
 """
 

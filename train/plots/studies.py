@@ -1,4 +1,5 @@
-"""Figures of the studies: error–effort fronts, the adversarial search, control rates."""
+"""Figures of the studies: error–effort fronts, the adversarial search, control rates, the
+verdict across robots."""
 
 from __future__ import annotations
 
@@ -109,5 +110,53 @@ def rates_figure(cfg: Any, table: pd.DataFrame, path: Path) -> None:
     fig.suptitle("× : does not hold at that rate (a failure, a refusal or too much accuracy lost)",
                  fontsize=9)  # fmt: skip
     fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+#: How :func:`verdict_plot` marks an outcome of the focus against its rival.
+_OUTCOME_STYLE = {"wins": ("tab:green", "wins"), "ties": ("0.55", "ties"),
+                  "loses": ("tab:red", "loses")}  # fmt: skip
+
+
+def verdict_plot(rivals: pd.DataFrame, robots: list[str], path: Path) -> None:
+    """The verdict across robots: one panel per robot, the focus's mean over its strongest
+    rival's (log scale, < 1: the focus is lower) in every condition, path distance (circles)
+    and time-indexed error (squares), coloured by the paired test's outcome
+    (:func:`train.studies.verdict_study.rivals`' table)."""
+    from train.evaluation.verdict import condition_name
+
+    plt = pyplot()
+    conditions = sorted(
+        {(d, lv) for d, lv in zip(rivals["disturbance"], rivals["level"], strict=True)},
+        key=lambda c: (c[0] != "none", c[0], c[1]),
+    )
+    x_of = {c: i for i, c in enumerate(conditions)}
+    fig, axes = plt.subplots(1, len(robots), figsize=(3.2 * len(robots) + 1, 4.2),
+                             squeeze=False, sharey=True)  # fmt: skip
+    shown: set[str] = set()
+    for ax, robot in zip(axes[0], robots, strict=True):
+        sub = rivals[rivals["robot"] == robot]
+        for metric, marker, shift in (("path_dist_rms", "o", -0.15), ("time_err_rms", "s", 0.15)):
+            m = sub[sub["metric"] == metric]
+            for outcome, (colour, label) in _OUTCOME_STYLE.items():
+                o = m[m["outcome"] == outcome]
+                x = [x_of[(d, lv)] + shift for d, lv in zip(o["disturbance"], o["level"],
+                                                              strict=True)]  # fmt: skip
+                key = f"{label}, {'path distance' if marker == 'o' else 'time-indexed error'}"
+                ax.scatter(x, o["ratio"], marker=marker, color=colour, s=22,
+                           label=key if key not in shown else None)  # fmt: skip
+                shown.add(key)
+        ax.axhline(1.0, color="k", lw=0.8)
+        ax.set_yscale("log")
+        ax.set_xticks(range(len(conditions)))
+        ax.set_xticklabels([condition_name(d, lv) for d, lv in conditions], rotation=90,
+                           fontsize=7)  # fmt: skip
+        ax.set_title(robot, fontsize=9)
+        ax.grid(True, axis="y", which="both", alpha=0.3)
+    axes[0][0].set_ylabel("passivity / strongest rival (mean; < 1: passivity lower)", fontsize=8)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, loc="upper center", ncol=3)
+    fig.tight_layout(rect=(0, 0, 1, 0.88))
     fig.savefig(path, dpi=110)
     plt.close(fig)
