@@ -17,7 +17,8 @@ from train.cli import run_command
 from train.studies.adversary import AdversaryConfig, load_config, replay, run_search
 
 #: Two-link: impulses from 0.2 s on, over a whole path period, cost over the 0.5 s after;
-#: two search seeds, each 16 random draws then two CMA-ES runs of 8 (populations 4 and 8).
+#: two search seeds, each 16 random draws then two CMA-ES runs of 8 (populations 4 and 8),
+#: then a local run of 4.
 TINY = [
     "env_id=ptrack_gym/TwoLinkTrack-v0",
     "controllers=[pd_gravity]",
@@ -25,6 +26,7 @@ TINY = [
     "onset_s=[0.2, 0.6]",
     "post_s=0.5",
     "popsize=4",
+    "polish_budget=4",
     "search_seeds=[0, 1]",
     "control_hz=250.0",
     "workers=2",
@@ -46,8 +48,8 @@ def search(tmp_path_factory):
 
 def test_search_finds_a_worse_push_than_the_median_random_one(search) -> None:
     df = pd.read_csv(search / "trials.csv", float_precision="round_trip")
-    assert len(df) == 2 * 32  # per seed 16 searched + 16 random
-    assert sorted(df["run"].unique()) == ["random", "search0", "search1"]
+    assert len(df) == 2 * 36  # per seed 16 random + 16 searched + 4 local
+    assert sorted(df["run"].unique()) == ["polish", "random", "search0", "search1"]
     searched = df[df["kind"] == "search"]["cost_rad"]
     random = df[df["kind"] == "random"]["cost_rad"]
     assert searched.max() > random.median()
@@ -84,6 +86,46 @@ def test_search_finds_a_worse_push_than_the_median_random_one(search) -> None:
         assert (search / name).stat().st_size > 0, name
 
 
+def test_the_local_run_starts_at_the_worst_so_far_with_small_steps(search) -> None:
+    """Its first episode is the seed's worst before it, and its others stay close to it:
+    within a few steps of polish_sigma (0.02 of each range) in every searched parameter."""
+    import numpy as np
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    from train.studies.adversary import study_name
+
+    storage = JournalStorage(JournalFileBackend(str(search / "optuna.journal")))
+    for seed in (0, 1):
+        before = []
+        for kind in ("random", "search0", "search1"):
+            before += optuna.load_study(
+                study_name=study_name("pd_gravity", "impulse", 0.6, kind, seed), storage=storage
+            ).trials
+        worst = max(before, key=lambda t: t.value)
+        local = optuna.load_study(
+            study_name=study_name("pd_gravity", "impulse", 0.6, "polish", seed), storage=storage
+        ).trials
+        assert len(local) == 4 and local[0].params == worst.params
+        assert max(t.value for t in local) >= worst.value
+        for t in local[1:]:
+            for name, value in t.params.items():
+                dist = t.distributions[name]
+                span = dist.high - dist.low
+                assert abs(value - worst.params[name]) <= 5 * 0.02 * span, name
+        # the global runs take larger steps: the same check fails for their episodes
+        far = [
+            name
+            for t in before
+            for name, value in t.params.items()
+            if abs(value - worst.params[name])
+            > 5 * 0.02 * (t.distributions[name].high - t.distributions[name].low)
+        ]
+        assert far
+    assert np.isfinite([t.value for t in local]).all()
+
+
 def test_worst_case_replays_bit_identically(search) -> None:
     worst = yaml.safe_load((search / "worst.yml").read_text())
     entry = worst["worst"]["pd_gravity"]["impulse"]["0.6"]
@@ -105,7 +147,7 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
         )
     run_search(load_config(None, [*TINY, "budget=20", f"out={out}"]), resume=True, progress=False)
     df = pd.read_csv(out / "trials.csv", float_precision="round_trip")
-    assert len(df) == 2 * 40
+    assert len(df) == 2 * 44
     # the random draws of the resumed search are those of an uninterrupted one
     fresh = tmp_path / "fresh"
     run_search(load_config(None, [*TINY, "budget=20", f"out={fresh}"]), progress=False)
@@ -120,7 +162,7 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
     first = pd.read_csv(search / "trials.csv", float_precision="round_trip")
     key = ["seed", "run", "trial"]
     kept = df.merge(first[key], on=key).sort_values(key).reset_index(drop=True)
-    assert len(kept) == 2 * 32  # every episode of the first search is kept, unchanged
+    assert len(kept) == 2 * 36  # every episode of the first search is kept, unchanged
     pd.testing.assert_series_equal(
         kept["cost_rad"], first.sort_values(key).reset_index(drop=True)["cost_rad"]
     )
@@ -140,7 +182,9 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
         ("onset_s=[2.0, 1.0]", "onset_s"),
         ("search_seeds=[]", "search_seeds"),
         ("search_seeds=[1, 1]", "search_seeds"),
-        ("restarts=3", "restarts"),  # 10 episodes over 4 runs: fewer than a population each
+        ("restarts=3", "restarts"),
+        ("polish_budget=3", "polish_budget must be 0 or an integer >= popsize"),
+        ("polish_sigma=0", "polish_sigma"),  # 10 episodes over 4 runs: fewer than a population each
         ("space=cube", "space"),
         # an empty search space: a box onset range of zero width, a single frequency
         ("space=box;onset_s=[1.0, 1.0]", r"onset_s \[1, 1\] is an empty search range"),
@@ -236,8 +280,10 @@ def test_a_search_of_the_old_protocol_still_replays(tmp_path) -> None:
     old.pop("space")
     old.pop("restarts")
     old["seed"] = 4
+    old.pop("polish_budget")
     cfg = saved_config(old)
     assert cfg.search_seeds == [4] and cfg.space == "box" and cfg.restarts == 0
+    assert cfg.polish_budget == 0  # it ran no local run
 
 
 def dataclass_dict(cfg: AdversaryConfig) -> dict:

@@ -19,7 +19,12 @@ draws: WS-CMA-ES), for another ``budget`` episodes:
   home, a periodic torque over the run) with ``energy_mode``; the work the disturbance
   really does on the moving arm is recorded for every episode and reported beside it.
 
-The same budget (``budget`` searched + ``budget`` random episodes) for every controller.
+A last, local CMA-ES run of ``polish_budget`` episodes per seed starts at the seed's worst
+episode so far with a small step (``polish_sigma``): the global runs' large steps jump past
+narrow peaks (a push's phase and direction, a periodic torque's resonance).
+
+The same budget (``budget`` searched + ``budget`` random episodes, + ``polish_budget``) for
+every controller.
 Writes to ``--out``: ``optuna.journal`` (the studies: ``--resume`` continues them),
 ``trials.csv``, ``worst.yml`` (the worst spec per controller × family × energy and how to
 replay it), ``summary.md`` and ``adversary.png``. Episodes run in ``workers`` processes (a
@@ -67,14 +72,16 @@ __all__ = [
 
 
 def study_name(controller: str, family: str, energy_j: float, kind: str, seed: int) -> str:
-    """``<controller>|<family>|<energy>|<kind>|seed<k>``, kind "random" or "search<r>" (the
-    r-th CMA-ES run, r restarts in)."""
+    """``<controller>|<family>|<energy>|<kind>|seed<k>``, kind "random", "search<r>" (the
+    r-th CMA-ES run, r restarts in) or "polish" (the local run)."""
     return f"{controller}|{family}|{energy_j:g}|{kind}|seed{seed}"
 
 
 def kinds(cfg: AdversaryConfig) -> list[str]:
-    """The studies of one seed, in the order they run: the random draws, then each CMA-ES run."""
-    return ["random", *(f"search{r}" for r in range(cfg.restarts + 1))]
+    """The studies of one seed, in the order they run: the random draws, each global CMA-ES
+    run, then the local one (where ``polish_budget`` > 0)."""
+    local = ["polish"] if cfg.polish_budget > 0 else []
+    return ["random", *(f"search{r}" for r in range(cfg.restarts + 1)), *local]
 
 
 def run_budget(cfg: AdversaryConfig, kind: str) -> int:
@@ -82,6 +89,8 @@ def run_budget(cfg: AdversaryConfig, kind: str) -> int:
     CMA-ES runs (the remainder to the last)."""
     if kind == "random":
         return cfg.budget
+    if kind == "polish":
+        return cfg.polish_budget
     runs, r = cfg.restarts + 1, int(kind.removeprefix("search"))
     share = cfg.budget // runs
     return share + (cfg.budget - share * runs if r == runs - 1 else 0)
@@ -103,7 +112,8 @@ def run_search(
     check_targets(cfg)
     run = open_run(
         cfg.out, "optuna.journal", _config_dict(cfg), resume=resume, force=force,
-        free=("workers", "out", "budget"),  # a resume may extend the budget: each run grows
+        # a resume may extend the budget (each run grows) or add or extend the local run
+        free=("workers", "out", "budget", "polish_budget"),
         saved_required=False,
     )  # fmt: skip
     out, journal = run.out, run.results
@@ -146,20 +156,29 @@ def _run_study(
         # started at the centre settles (seen: 0/200 searched vs 14/200 random draws
         # unstable for the passivity controller at 2 J on the iiwa). Each restart doubles
         # the population (IPOP's schedule).
-        r = int(kind.removeprefix("search"))
-        for earlier in kinds(cfg)[: r + 1]:
+        order = kinds(cfg)
+        for earlier in order[: order.index(kind)]:
             source += optuna.load_study(
                 study_name=study_name(controller, target.family, target.energy_j, earlier, seed),
                 storage=storage,
             ).get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
-        with warnings.catch_warnings():  # source_trials is "experimental" in Optuna 4-5
+        with warnings.catch_warnings():  # source_trials is "experimental" in Optuna 4-5,
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-            sampler = optuna.samplers.CmaEsSampler(
-                source_trials=source, popsize=cfg.popsize * 2**r,
-                # "box" is the search before issue 38, seeded as it was: it repeats exactly
-                seed=seed if cfg.space == "box" else _draw_seed(seed, 2 + r),
-                warn_independent_sampling=False,
-            )  # fmt: skip
+            warnings.simplefilter("ignore", FutureWarning)  # x0 and sigma0 deprecated in 4.9
+            if kind == "polish":  # local: at the worst so far, small steps
+                sampler = optuna.samplers.CmaEsSampler(
+                    x0=max(source, key=lambda t: t.value).params, sigma0=cfg.polish_sigma,
+                    popsize=cfg.popsize, seed=_draw_seed(seed, POLISH_STREAM),
+                    warn_independent_sampling=False,
+                )  # fmt: skip
+            else:
+                r = int(kind.removeprefix("search"))
+                sampler = optuna.samplers.CmaEsSampler(
+                    source_trials=source, popsize=cfg.popsize * 2**r,
+                    # "box" is the search before issue 38, seeded as it was: it repeats exactly
+                    seed=seed if cfg.space == "box" else _draw_seed(seed, 2 + r),
+                    warn_independent_sampling=False,
+                )  # fmt: skip
     else:
         sampler = optuna.samplers.RandomSampler(seed=_draw_seed(seed, 0))  # reseeded per draw
     study = optuna.create_study(
@@ -176,12 +195,16 @@ def _run_study(
         study.enqueue_trial(max(source, key=lambda t: t.value).params)
     done = len(complete)
     wall_s = float(study.user_attrs.get("wall_s", 0.0))  # summed over batches: resume-safe
-    restart = 0 if kind == "random" else int(kind.removeprefix("search"))
+    restart = int(kind.removeprefix("search")) if kind.startswith("search") else 0
     popsize = cfg.popsize * 2**restart
     while done < budget:
         t0 = time.perf_counter()
         batch = []
-        for i in range(min(popsize, budget - done)):
+        # Optuna's CMA-ES learns the search space from a completed trial of its own study: a
+        # generation asked before any is told is drawn independently (at random). The local
+        # run therefore runs its first episode (the worst so far) alone.
+        size = 1 if kind == "polish" and done == 0 else min(popsize, budget - done)
+        for i in range(size):
             if kind == "random":  # the k-th draw is a function of (seed, k): resume-safe
                 study.sampler = optuna.samplers.RandomSampler(seed=_draw_seed(seed, 1, done + i))
             batch.append(study.ask())
@@ -208,11 +231,15 @@ def _run_study(
             print(f"{name}: {done}/{budget}, worst {study.best_value:.3g} rad", flush=True)
 
 
+#: The seed stream of the local run's sampler (the global runs' are 2 + r).
+POLISH_STREAM = 1_000
+
+
 def _draw_seed(seed: int, *stream: int) -> int:
     """The seed of a sampler of search seed ``seed``: (seed, 1, k) for the k-th random draw
     — an interrupted and resumed search draws exactly what an uninterrupted one does (a
-    sampler seeded once would repeat its first draws) — (seed, 0) and (seed, 2 + r) for the
-    others."""
+    sampler seeded once would repeat its first draws) — (seed, 0), (seed, 2 + r) and
+    (seed, :data:`POLISH_STREAM`) for the others."""
     return int(np.random.SeedSequence([seed, *stream]).generate_state(1)[0])
 
 
@@ -311,7 +338,14 @@ def _write_results(optuna: Any, storage: Any, cfg: AdversaryConfig, out: Path) -
     (out / "summary.md").write_text(
         f"{table}\n\nSearch wall time {wall_s:.0f} s: per row and search seed "
         f"({cfg.search_seeds}) {cfg.budget} random + {cfg.budget} searched episodes "
-        f"({cfg.restarts + 1} CMA-ES runs, population {cfg.popsize} doubling); {space}; "
+        f"({cfg.restarts + 1} CMA-ES runs, population {cfg.popsize} doubling)"
+        + (
+            f" + {cfg.polish_budget} of a local run (step {cfg.polish_sigma:g} of each range, "
+            "from the worst so far)"
+            if cfg.polish_budget
+            else ""
+        )
+        + f"; {space}; "
         f"energy {cfg.energy_mode}; {cfg.env_id}. Spread: (max − min) / median of the seeds' "
         f"worst cases. On a bound: a non-wrapping parameter of the {WORST_CHECKED} worst "
         f"episodes within {BOUND_MARGIN:.0%} of its range of a bound.\n"

@@ -53,6 +53,15 @@ class AdversaryConfig:
     """CMA-ES restarts (IPOP's schedule, on a fixed budget): the searched budget is split
     over ``restarts`` + 1 runs, the r-th with population popsize·2^r, each warm-started from
     every episode of the seed so far."""
+    polish_budget: int = 50
+    """Episodes of a last, local CMA-ES run per search seed (0: none), beside ``budget``: it
+    starts at the seed's worst episode so far with a small step (``polish_sigma``), where the
+    global runs (large steps, doubling populations) jump past narrow peaks — a push's phase
+    and direction, a periodic torque's resonance (BIPOP's small-population regime, once)."""
+    polish_sigma: float = 0.02
+    """The local run's initial step, as a fraction of each searched range (CMA-ES works in
+    the box scaled to [0, 1]; phases and angles are searched over two periods, so 0.02 is
+    4 % of a period)."""
     reset_seed: int = 0
     """Env reset seed of every episode (the start on the path, where ``space`` is "box")."""
     search_seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
@@ -122,6 +131,19 @@ class AdversaryConfig:
                 f"many random draws: at least one) and popsize >= 2, got budget {self.budget}, "
                 f"popsize {self.popsize}"
             )
+        if (
+            isinstance(self.polish_budget, bool)
+            or not isinstance(self.polish_budget, int)
+            or not (self.polish_budget == 0 or self.polish_budget >= self.popsize)
+        ):
+            raise InvalidConfigError(
+                f"polish_budget must be 0 or an integer >= popsize ({self.popsize}), got "
+                f"{self.polish_budget!r}"
+            )
+        if not (isinstance(self.polish_sigma, (int, float)) and 0 < self.polish_sigma <= 0.5):
+            raise InvalidConfigError(
+                f"polish_sigma must lie in (0, 0.5], got {self.polish_sigma!r}"
+            )
         lo, hi = self.onset_s
         if not (0 <= lo <= hi) or not (0 < self.frequency_hz[0] <= self.frequency_hz[1]):
             raise InvalidConfigError("onset_s and frequency_hz must be (low, high) ranges")
@@ -167,12 +189,14 @@ class AdversaryConfig:
 
 def saved_config(saved: dict[str, Any]) -> AdversaryConfig:
     """The config of a search's ``config.yml``, that of a search before issue 38 included:
-    it had one sampler ``seed`` and searched the box (``space`` "box")."""
+    it had one sampler ``seed`` and searched the box (``space`` "box"); one without
+    ``polish_budget`` ran no local run."""
     saved = dict(saved)
     if "seed" in saved:
         saved["search_seeds"] = [int(saved.pop("seed"))]
     saved.setdefault("space", "box")
     saved.setdefault("restarts", 0)
+    saved.setdefault("polish_budget", 0)  # a search before the local run
     return AdversaryConfig(**saved)
 
 
