@@ -8,8 +8,6 @@ from pathlib import Path
 import pytest
 import yaml
 
-from ptrack_gym.errors import InvalidConfigError
-
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = sorted((ROOT / "train" / "configs").glob("*/*.yml"))
 
@@ -93,13 +91,6 @@ def test_the_main_job_compares_tuned_gains_on_enough_seeds() -> None:
     assert cfg.episode_s - (onset[1] + 0.05) >= 3.0
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=InvalidConfigError,
-    reason="the tuning fights (train/configs/tune/tune_fight_*.yml) have not run on every "
-    "robot: no tuned gains for the xArm6 (strict: once they exist this passes, and the mark "
-    "must go)",
-)
 def test_the_verdict_has_tuned_gains_on_every_robot(monkeypatch) -> None:
     """The verdict and the unboxed worst-case searches (``worst_<robot>.yml``) at tuned gains."""
     pytest.importorskip("optuna", reason="the 'tune' extra")
