@@ -30,11 +30,13 @@ def _tiny(out: Path, **kw) -> RatesConfig:
         ({"paths": 0}, "paths must be an integer >= 1"),
         ({"controllers": []}, "controllers must be a non-empty list"),
         ({"control_rates": [250.0, 250.0]}, "control_rates has duplicates"),
-        ({"gains": "tuned", "robots": ["xarm6"]}, "no tuned gains for passivity on xarm6"),
+        ({"gains": "tuned", "robots": ["panda"]}, "no tuned gains for passivity on panda"),
         ({"accuracy_factor": 0.0}, "accuracy_factor must be a positive number"),
     ],
 )
-def test_bad_configs_are_refused_before_any_episode(tmp_path, change, message) -> None:
+def test_bad_configs_are_refused_before_any_episode(
+    tmp_path, change, message, without_panda_gains
+) -> None:
     cfg = _tiny(tmp_path / "out", **change)
     with pytest.raises(InvalidConfigError, match=message):
         run_study(cfg, progress=False)

@@ -127,8 +127,6 @@ def verdict_plot(rivals: pd.DataFrame, robots: list[str], path: Path) -> None:
     rival's (log scale, < 1: the focus is lower) in every condition, path distance (circles)
     and time-indexed error (squares), coloured by the paired test's outcome
     (:func:`train.studies.verdict_study.rivals`' table)."""
-    from train.evaluation.verdict import condition_name
-
     plt = pyplot()
     conditions = sorted(
         {(d, lv) for d, lv in zip(rivals["disturbance"], rivals["level"], strict=True)},
@@ -153,8 +151,8 @@ def verdict_plot(rivals: pd.DataFrame, robots: list[str], path: Path) -> None:
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set_yscale("log")
         ax.set_xticks(range(len(conditions)))
-        ax.set_xticklabels([condition_name(d, lv) for d, lv in conditions], rotation=90,
-                           fontsize=7)  # fmt: skip
+        ax.set_xticklabels(["undisturbed" if d == "none" else f"{d} {lv:g}"
+                            for d, lv in conditions], rotation=90, fontsize=7)  # fmt: skip
         ax.set_title(robot, fontsize=9)
         ax.grid(True, axis="y", which="both", alpha=0.3)
     axes[0][0].set_ylabel("passivity / strongest rival (mean; < 1: passivity lower)", fontsize=8)
