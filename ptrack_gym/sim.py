@@ -221,6 +221,7 @@ class BulletArm:
             for j in range(self.num_links)
         }
         self._mass_changes: dict[int, tuple[float, float]] = {}
+        self._com_points: dict[int, list[float]] = {}  # com_jacobian's point, per link
         for link in range(-1, self.num_links):
             p.changeDynamics(
                 body_id,
@@ -365,17 +366,25 @@ class BulletArm:
         )
 
     def com_jacobian(self, link_name: str, q: FloatArray) -> FloatArray:
-        """Translational Jacobian (m/rad) of a link's centre of mass at pose q, (3, n)."""
+        """Translational Jacobian (m/rad) of a link's centre of mass at pose q, (3, n).
+
+        PyBullet's ``calculateJacobian`` takes its point relative to the link frame's origin
+        in the axes of the link's inertial frame (its docs say "around its centre of mass";
+        at point 0 it gives the frame origin's Jacobian, up to 0.23 m/rad off the centre of
+        mass's on these arms). The point passed is therefore the centre of mass in those
+        axes, R_iᵀ p_i (p_i, R_i: the inertial frame's position and rotation in the link
+        frame, from the URDF), checked against finite differences of the centre of mass on
+        every robot (tests/test_sim.py)."""
         cid = self.sim._require_connected()
+        j = self.link_index(link_name)
+        point = self._com_points.get(j)
+        if point is None:
+            info = p.getDynamicsInfo(self.body_id, j, physicsClientId=cid)
+            rot = np.array(p.getMatrixFromQuaternion(info[4])).reshape(3, 3)
+            point = self._com_points[j] = (rot.T @ np.asarray(info[3], dtype=np.float64)).tolist()
         zeros = [0.0] * self.n
         jac = p.calculateJacobian(
-            self.body_id,
-            self.link_index(link_name),
-            [0.0, 0.0, 0.0],
-            self.as_list(q, "q"),
-            zeros,
-            zeros,
-            physicsClientId=cid,
+            self.body_id, j, point, self.as_list(q, "q"), zeros, zeros, physicsClientId=cid
         )[0]
         return np.array(jac)
 
@@ -455,7 +464,6 @@ class BulletArm:
         from ``q0``. Returns the solution (rad) and its final position error (m).
         """
         cid, idx, n = self.sim._require_connected(), self.link_index(link_name), self.n
-        zeros = [0.0] * n
         q = np.array(q0, dtype=np.float64)
         err = np.inf
         for _ in range(iterations):
@@ -467,17 +475,7 @@ class BulletArm:
             )
             e = np.asarray(target_m, dtype=np.float64) - pos
             err = float(np.linalg.norm(e))
-            jac = np.array(
-                p.calculateJacobian(
-                    self.body_id,
-                    idx,
-                    [0.0, 0.0, 0.0],
-                    q.tolist(),
-                    zeros,
-                    zeros,
-                    physicsClientId=cid,
-                )[0]
-            )  # (3, n)
+            jac = self.com_jacobian(link_name, q)  # (3, n)
             jjt = jac @ jac.T + damping * np.eye(3)
             pinv = jac.T @ np.linalg.solve(jjt, np.eye(3))  # (n, 3)
             null = (np.eye(n) - pinv @ jac) @ (null_gain * (rest_q - q))
