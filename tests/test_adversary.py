@@ -9,12 +9,13 @@ import pytest
 pytest.importorskip("optuna", reason="the optional 'tune' extra (Optuna) is not installed")
 pytest.importorskip("cmaes", reason="the optional 'tune' extra (cmaes) is not installed")
 
+import numpy as np
 import pandas as pd
 import yaml
 
 from ptrack_gym.errors import InvalidConfigError
 from train.cli import run_command
-from train.studies.adversary import AdversaryConfig, load_config, replay, run_search
+from train.studies.adversary import AdversaryConfig, load_config, replay, replay_all, run_search
 
 #: Two-link: impulses from 0.2 s on, over a whole path period, cost over the 0.5 s after;
 #: two search seeds, each 16 random draws then two CMA-ES runs of 8 (populations 4 and 8),
@@ -89,7 +90,6 @@ def test_search_finds_a_worse_push_than_the_median_random_one(search) -> None:
 def test_the_local_run_starts_at_the_worst_so_far_with_small_steps(search) -> None:
     """Its first episode is the seed's worst before it, and its others stay close to it:
     within a few steps of polish_sigma (0.02 of each range) in every searched parameter."""
-    import numpy as np
     import optuna
     from optuna.storages import JournalStorage
     from optuna.storages.journal import JournalFileBackend
@@ -132,6 +132,21 @@ def test_worst_case_replays_bit_identically(search) -> None:
     outcome = replay(search / "worst.yml", "pd_gravity", "impulse", 0.6)
     assert outcome.cost == entry["cost_rad"]  # exactly
     assert outcome.work_j == entry["work_j"]
+
+
+def test_a_worst_case_replays_under_another_controller(search) -> None:
+    """``under``: the same spec, start phase and seed under another controller — itself
+    gives the searched episode, another a different episode of the same disturbance."""
+    worst = search / "worst.yml"
+    entry = yaml.safe_load(worst.read_text())["worst"]["pd_gravity"]["impulse"]["0.6"]
+    itself = replay(worst, "pd_gravity", "impulse", 0.6, under="pd_gravity")
+    assert itself.cost == entry["cost_rad"]
+    other = replay(worst, "pd_gravity", "impulse", 0.6, under="computed_torque")
+    assert np.isfinite(other.cost) and other.cost != entry["cost_rad"]
+    assert 0 <= other.peak_joint < 2 and other.peak_speed_rad_s > 0
+    lines = replay_all(worst, ["computed_torque"])
+    under = [line for line in lines if "under computed_torque" in line]
+    assert len(under) == len(lines) // 2 and f"cost {other.cost:.6g} rad" in "".join(under)
 
 
 def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> None:
@@ -226,8 +241,6 @@ def test_unknown_config_keys_are_refused() -> None:
 
 def test_sphere_angles_give_unit_directions_that_wrap() -> None:
     import math
-
-    import numpy as np
 
     from train.studies.worst_case import ANGLE_RANGE, is_wrapping, sphere_point
 

@@ -98,6 +98,11 @@ def test_a_missing_file_is_a_usage_error_and_a_failure_is_status_1(
         main(["replay", str(tmp_path)])
     assert exc.value.code == 2
     assert "worst.yml does not exist" in capsys.readouterr().err
+    (tmp_path / "worst.yml").write_text("worst: {}\n")
+    with pytest.raises(SystemExit) as exc:
+        main(["replay", str(tmp_path), "--under", "no_such_controller"])
+    assert exc.value.code == 2
+    assert "no_such_controller" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
         main(["evaluate", "--config", str(tmp_path / "nope.yml")])
     assert exc.value.code == 2

@@ -205,16 +205,30 @@ def _tune(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
 
 def _replay_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("worst", type=Path, help="a search's worst.yml, or its folder")
+    p.add_argument(
+        "--under",
+        nargs="+",
+        default=[],
+        metavar="CONTROLLER",
+        help="also replay each worst case (same spec, start phase and seed) under these "
+        "controllers: is it the controller's worst case, or the disturbance's?",
+    )
 
 
 def _replay(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+    from agents.registry import CONTROLLERS
     from ptrack_gym.errors import InvalidConfigError
     from train.studies.adversary import replay_all
 
     worst = args.worst / "worst.yml" if args.worst.is_dir() else args.worst
     if not worst.is_file():
         raise InvalidConfigError(f"{worst} does not exist: give a search's worst.yml or folder")
-    for line in replay_all(worst):
+    unknown = sorted(set(args.under) - set(CONTROLLERS))
+    if unknown:
+        raise InvalidConfigError(
+            f"unknown controller(s) {unknown} for --under; known: {sorted(CONTROLLERS)}"
+        )
+    for line in replay_all(worst, args.under):
         print(line)
     return 0
 

@@ -167,6 +167,7 @@ class Outcome:
     work_j: float  # ∫ q̇ᵀτ_d over the episode (J)
     peak_speed_rad_s: float  # max |q̇| over the episode
     peak_tau_frac: float  # max |τ| / τ_max of the applied (clipped) torque
+    peak_joint: int = 0  # the joint (0-based) where |q̇| peaked
 
 
 def evaluate(
@@ -209,6 +210,7 @@ def evaluate(
         work_j=record.disturbance_work_j,
         peak_speed_rad_s=float(np.max(np.abs(record.qd))),
         peak_tau_frac=float(np.max(np.abs(record.tau_nm) / record.torque_limits_nm)),
+        peak_joint=int(np.argmax(np.max(np.abs(record.qd), axis=0))),
     )
 
 
@@ -224,23 +226,45 @@ def controller_gains(cfg: AdversaryConfig, controller: str) -> str | dict[str, A
     return cfg.gains
 
 
-def replay(worst_yml: Path, controller: str, family: str, energy_j: float) -> Outcome:
-    """Re-run a worst case of ``worst.yml`` (bit-identical to the searched episode)."""
+def replay(
+    worst_yml: Path,
+    controller: str,
+    family: str,
+    energy_j: float,
+    under: str | None = None,
+) -> Outcome:
+    """Re-run a worst case of ``worst.yml`` (bit-identical to the searched episode); with
+    ``under``, the same disturbance spec, start phase and reset seed under another controller
+    (at the search's gains setting: its default, or its own tuned gains). A ``delivered``
+    budget is sized at the onset from that controller's own state, so its work may differ."""
     data = yaml.safe_load(worst_yml.read_text())
     entry = data["worst"][controller][family][f"{energy_j:g}"]
     cfg = saved_config(yaml.safe_load((worst_yml.parent / "config.yml").read_text()))
     target = Searchable(cfg, family, energy_j)
     spec = entry["spec"]
+    gains = entry.get("gains", cfg.gains)
+    if under is not None and under != controller:
+        gains = controller_gains(cfg, under)
+        controller = under
     return evaluate(
         cfg.env_id, controller, spec, cfg.reset_seed, target.episode_s(), target.window(spec),
-        cfg.control_hz, cfg.failure_distance_rad, entry.get("gains", cfg.gains),
-        entry.get("s0"),
+        cfg.control_hz, cfg.failure_distance_rad, gains, entry.get("s0"),
     )  # fmt: skip
 
 
-def replay_all(worst_yml: Path) -> list[str]:
+def _line(outcome: Outcome) -> str:
+    return (
+        f"cost {outcome.cost:.6g} rad, unstable={outcome.unstable}, work {outcome.work_j:.3g} J, "
+        f"peak |q̇| {outcome.peak_speed_rad_s:.3g} rad/s (joint {outcome.peak_joint + 1}), "
+        f"peak |τ|/τ_max {outcome.peak_tau_frac:.2f}"
+    )
+
+
+def replay_all(worst_yml: Path, under: Sequence[str] = ()) -> list[str]:
     """Re-run every worst case of a search's ``worst.yml``: one line each, the replayed
-    cost beside the searched one (a spec replays bit-identically: the two are equal)."""
+    cost beside the searched one (a spec replays bit-identically: the two are equal), then,
+    for each controller of ``under``, the same case under that controller (is the worst
+    case the searched controller's, or the disturbance's?)."""
     data = yaml.safe_load(worst_yml.read_text())
     lines = []
     for controller, families in data["worst"].items():
@@ -248,9 +272,12 @@ def replay_all(worst_yml: Path) -> list[str]:
             for energy, entry in energies.items():
                 outcome = replay(worst_yml, controller, family, float(energy))
                 lines.append(
-                    f"{controller} {family} {energy} J: cost {outcome.cost:.6g} rad "
-                    f"(searched {entry['cost_rad']:.6g}), unstable={outcome.unstable}"
+                    f"{controller} {family} {energy} J: {_line(outcome)} "
+                    f"(searched cost {entry['cost_rad']:.6g})"
                 )
+                for other in under:
+                    outcome = replay(worst_yml, controller, family, float(energy), other)
+                    lines.append(f"  the same case under {other}: {_line(outcome)}")
     return lines
 
 
