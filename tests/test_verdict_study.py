@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import train.studies.verdict_paths as verdict_paths
 import train.studies.verdict_study as vs
 from ptrack_gym.errors import InvalidConfigError
 from train.common.statistics import bootstrap_ci, hierarchical_bootstrap
@@ -78,7 +79,7 @@ def test_a_paths_features_are_those_of_the_path_its_env_builds():
     from ptrack_gym.robots import ROBOTS
 
     for robot, seed in (("two_link", 3), ("iiwa", 1)):
-        feats = vs.path_features(robot, seed)
+        feats = verdict_paths.path_features(robot, seed)
         env = gym.make(ROBOTS[robot].env_id, path="random", path_seed=seed)
         try:
             path = env.unwrapped.path
@@ -92,7 +93,6 @@ def test_a_paths_features_are_those_of_the_path_its_env_builds():
 def test_path_outcomes_are_the_rival_test_on_each_paths_pairs_alone():
     """A path where the focus is clearly lower everywhere counts wins, one where it is
     clearly higher counts losses: the per-path test does not pool the paths."""
-    from train.studies.verdict_study import path_outcomes
 
     rng = np.random.default_rng(0)
     rows = []
@@ -106,9 +106,9 @@ def test_path_outcomes_are_the_rival_test_on_each_paths_pairs_alone():
                     rows.append({"robot": "two_link", "path": path, "controller": ctrl,
                                  "disturbance": dist, "level": 1.0, "seed": seed, "episode": 0,
                                  "path_dist_rms": value, "time_err_rms": value})  # fmt: skip
-    cfg = VerdictConfig(robots=["two_link"], controllers=["passivity", "computed_torque",
-                        "pd_gravity"], gains="default", resamples=2000)  # fmt: skip
-    out = path_outcomes(cfg, pd.DataFrame(rows)).set_index(["path", "metric"])
+    controllers = ["passivity", "computed_torque", "pd_gravity"]
+    out = verdict_paths.path_outcomes(["two_link"], controllers, 2000, pd.DataFrame(rows))
+    out = out.set_index(["path", "metric"])
     assert (
         out.loc[(1, "path_dist_rms"), "wins"] == 2 and out.loc[(1, "path_dist_rms"), "losses"] == 0
     )

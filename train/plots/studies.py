@@ -3,6 +3,7 @@ verdict across robots."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -122,10 +123,16 @@ _OUTCOME_STYLE = {"wins": ("tab:green", "wins"), "ties": ("0.55", "ties"),
                   "loses": ("tab:red", "loses")}  # fmt: skip
 
 
-def verdict_plot(rivals: pd.DataFrame, robots: list[str], path: Path) -> None:
+def verdict_plot(
+    rivals: pd.DataFrame,
+    robots: list[str],
+    path: Path,
+    name_of: Callable[[str, float], str],
+) -> None:
     """The verdict across robots: one panel per robot, the focus's mean over its strongest
-    rival's (log scale, < 1: the focus is lower) in every condition, path distance (circles)
-    and time-indexed error (squares), coloured by the paired test's outcome
+    rival's (log scale, < 1: the focus is lower) in every condition (named by
+    ``name_of(disturbance, level)``), path distance (circles) and time-indexed error
+    (squares), coloured by the paired test's outcome
     (:func:`train.studies.verdict_study.rivals`' table)."""
     plt = pyplot()
     conditions = sorted(
@@ -151,8 +158,7 @@ def verdict_plot(rivals: pd.DataFrame, robots: list[str], path: Path) -> None:
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set_yscale("log")
         ax.set_xticks(range(len(conditions)))
-        ax.set_xticklabels(["undisturbed" if d == "none" else f"{d} {lv:g}"
-                            for d, lv in conditions], rotation=90, fontsize=7)  # fmt: skip
+        ax.set_xticklabels([name_of(d, lv) for d, lv in conditions], rotation=90, fontsize=7)
         ax.set_title(robot, fontsize=9)
         ax.grid(True, axis="y", which="both", alpha=0.3)
     axes[0][0].set_ylabel("passivity / strongest rival (mean; < 1: passivity lower)", fontsize=8)

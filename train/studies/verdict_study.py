@@ -20,7 +20,7 @@ Writes to ``--out``:
 * ``paths.csv`` — per robot, test path and metric, the same test on that path's pairs alone
   (its strongest rival per condition, Holm over the robot's conditions): where the focus
   wins, ties and loses path by path, beside the path's period and amplitude
-  (:func:`path_outcomes`);
+  (:func:`train.studies.verdict_paths.path_outcomes`);
 * ``verdict.png`` — per robot, focus / rival in every condition under both metrics, marked
   by the outcome (:func:`train.plots.studies.verdict_plot`);
 * ``aggregates.csv`` — per robot, condition and controller, the mean of each metric over
@@ -66,11 +66,11 @@ from train.evaluation.verdict import (
     words,
 )
 from train.studies.rows import run_rows
+from train.studies.verdict_paths import FOCUS, path_outcomes, path_table
 
 KEY_COLUMNS = ("robot", "path", "controller", "disturbance", "level", "seed", "episode")
 COLUMNS = (*KEY_COLUMNS, *METRIC_NAMES, "steps", "wall_s")
 #: The controller the verdict is about.
-FOCUS = "passivity"
 
 
 @dataclass
@@ -289,75 +289,6 @@ def rivals(cfg: VerdictConfig, df: pd.DataFrame) -> pd.DataFrame:
     return out[["robot", *[c for c in out.columns if c != "robot"]]]
 
 
-def path_features(robot: str, path_seed: int) -> dict[str, float]:
-    """The random test path ``path_seed`` of ``robot`` (the one its env builds): its period
-    (s) and its largest joint amplitude (rad, half the peak-to-peak range over a period)."""
-    import numpy as np
-
-    from ptrack_gym.paths import make_path
-    from ptrack_gym.robots import PinocchioModel
-
-    profile = ROBOTS[robot]
-    path = make_path("random", profile, path_seed, PinocchioModel(profile).mass_matrix)
-    q = path.evaluate(np.linspace(0.0, path.period_s, 512, endpoint=False))[0]
-    return {"period_s": path.period_s, "amplitude_rad": float(np.max(np.ptp(q, axis=0)) / 2)}
-
-
-def path_outcomes(cfg: VerdictConfig, df: pd.DataFrame) -> pd.DataFrame:
-    """Per robot, test path and metric: :func:`rival_comparisons` on that path's (seed)
-    pairs alone — the strongest rival on the path in each condition, Holm over the robot's
-    conditions — counted as wins, ties and losses, with the path's :func:`path_features`.
-    With 10 seeds a path's test can resolve (the exact sign-flip test's smallest p-value,
-    2/1024, is below Holm's first threshold 0.05/15); with fewer it may not, and the
-    ``pairs_needed`` column says so."""
-    rows = []
-    for robot in cfg.robots:
-        sub = df[(df["robot"] == robot) & df["controller"].isin(cfg.controllers)]
-        for path, g in sub.groupby("path", sort=False):
-            feats = path_features(robot, int(path))
-            for metric in BOTH_METRICS:
-                try:
-                    r = rival_comparisons(g, metric, FOCUS, resamples=cfg.resamples, seed=0)
-                except TooFewPairsError:
-                    continue
-                if not len(r):
-                    continue
-                counts = r["outcome"].value_counts()
-                rows.append({
-                    "robot": robot, "path": int(path), **feats, "metric": metric,
-                    "wins": int(counts.get("wins", 0)), "ties": int(counts.get("ties", 0)),
-                    "losses": int(counts.get("loses", 0)), "conditions": len(r),
-                    "pairs": int(r["pairs"].min()), "pairs_needed": int(r["pairs_needed"].max()),
-                    "ratio_median": float(r["ratio"].median()),
-                })  # fmt: skip
-    return pd.DataFrame(rows)
-
-
-def path_table(paths: pd.DataFrame) -> str:
-    """Markdown: per test path, its period and amplitude and the focus's wins / ties /
-    losses against the path's strongest rival under each metric."""
-    if paths.empty:
-        return ""
-    lines = [
-        "| path | period (s) | amplitude (rad) | path distance: W / T / L | median focus / rival "
-        "| time-indexed error: W / T / L | median focus / rival | pairs |",
-        "|---:|---:|---:|---|---:|---|---:|---:|",
-    ]
-    for path, g in paths.groupby("path", sort=True):
-        cells = []
-        for metric in BOTH_METRICS:
-            m = g[g["metric"] == metric]
-            if m.empty:
-                cells += ["–", "–"]
-                continue
-            r = m.iloc[0]
-            cells += [f"{r['wins']} / {r['ties']} / {r['losses']}", f"{r['ratio_median']:.2f}"]
-        r0 = g.iloc[0]
-        lines.append(f"| {path} | {r0['period_s']:.2f} | {r0['amplitude_rad']:.2f} | "
-                     + " | ".join(cells) + f" | {int(g['pairs'].min())} |")  # fmt: skip
-    return "\n".join(lines)
-
-
 def aggregates(cfg: VerdictConfig, df: pd.DataFrame) -> pd.DataFrame:
     """Per robot, condition and controller: the paths, the episodes, the failed ones and,
     per metric, the mean over paths of the per-path means with its hierarchical
@@ -420,13 +351,13 @@ def write_report(cfg: VerdictConfig, out: Path) -> None:
     table.to_csv(out / "rivals.csv", index=False, float_format="%.6g")
     agg = aggregates(cfg, df)
     agg.to_csv(out / "aggregates.csv", index=False, float_format="%.6g")
-    paths = path_outcomes(cfg, df)
+    paths = path_outcomes(cfg.robots, cfg.controllers, cfg.resamples, df)
     paths.to_csv(out / "paths.csv", index=False, float_format="%.6g")
     if len(table):
         from train.plots.studies import verdict_plot
 
         verdict_plot(table, [r for r in cfg.robots if r in set(table["robot"])],
-                     out / "verdict.png")  # fmt: skip
+                     out / "verdict.png", condition_name)  # fmt: skip
     wall_h = df["wall_s"].sum() / 3600.0
     lines = [
         "# Verdict across robots and paths",
