@@ -19,11 +19,15 @@ draws: WS-CMA-ES), for another ``budget`` episodes:
   home, a periodic torque over the run) with ``energy_mode``; the work the disturbance
   really does on the moving arm is recorded for every episode and reported beside it.
 
+A periodic torque may first be scanned in frequency (``scan_points``: one episode per joint
+at each frequency, the worst direction predicted from their superposition and verified,
+:mod:`train.studies.periodic_scan`): its resonances are narrow in frequency × direction.
 A last, local CMA-ES run of ``polish_budget`` episodes per seed starts at the seed's worst
 episode so far with a small step (``polish_sigma``): the global runs' large steps jump past
 narrow peaks (a push's phase and direction, a periodic torque's resonance).
 
-The same budget (``budget`` searched + ``budget`` random episodes, + ``polish_budget``) for
+The same budget (``budget`` searched + ``budget`` random episodes, + ``polish_budget``, + a
+scan's) for
 every controller.
 Writes to ``--out``: ``optuna.journal`` (the studies: ``--resume`` continues them),
 ``trials.csv``, ``worst.yml`` (the worst spec per controller × family × energy and how to
@@ -49,6 +53,7 @@ from ptrack_gym.errors import InvalidConfigError
 from train.common.runs import open_run, worker_count, worker_pool
 from train.plots.studies import adversary_plot
 from train.studies.adversary_config import FAMILIES, AdversaryConfig, load_config
+from train.studies.periodic_scan import SCAN_STREAM, run_scan
 from train.studies.worst_case import (
     Outcome,
     Searchable,
@@ -77,20 +82,24 @@ def study_name(controller: str, family: str, energy_j: float, kind: str, seed: i
     return f"{controller}|{family}|{energy_j:g}|{kind}|seed{seed}"
 
 
-def kinds(cfg: AdversaryConfig) -> list[str]:
-    """The studies of one seed, in the order they run: the random draws, each global CMA-ES
-    run, then the local one (where ``polish_budget`` > 0)."""
+def kinds(cfg: AdversaryConfig, family: str) -> list[str]:
+    """The studies of one seed, in the order they run: the random draws, a periodic
+    torque's frequency scan (where ``scan_points`` > 0), each global CMA-ES run, then the
+    local one (where ``polish_budget`` > 0)."""
+    scan = ["scan"] if cfg.scan_points > 0 and family == "periodic" else []
     local = ["polish"] if cfg.polish_budget > 0 else []
-    return ["random", *(f"search{r}" for r in range(cfg.restarts + 1)), *local]
+    return ["random", *scan, *(f"search{r}" for r in range(cfg.restarts + 1)), *local]
 
 
-def run_budget(cfg: AdversaryConfig, kind: str) -> int:
+def run_budget(cfg: AdversaryConfig, kind: str, n: int = 0) -> int:
     """Episodes of one study: ``budget`` random ones; the searched ``budget`` split over the
-    CMA-ES runs (the remainder to the last)."""
+    CMA-ES runs (the remainder to the last); a scan's scan_points·n + scan_top (n joints)."""
     if kind == "random":
         return cfg.budget
     if kind == "polish":
         return cfg.polish_budget
+    if kind == "scan":
+        return cfg.scan_points * n + cfg.scan_top
     runs, r = cfg.restarts + 1, int(kind.removeprefix("search"))
     share = cfg.budget // runs
     return share + (cfg.budget - share * runs if r == runs - 1 else 0)
@@ -126,8 +135,9 @@ def run_search(
                 for energy in cfg.energies_j:
                     target = Searchable(cfg, family, energy)
                     for seed in cfg.search_seeds:
-                        for kind in kinds(cfg):  # each search starts from all run before
-                            _run_study(
+                        for kind in kinds(cfg, family):  # each starts from all run before
+                            run = _run_scan if kind == "scan" else _run_study
+                            run(
                                 optuna, storage, pool, cfg, controller, target, kind, seed,
                                 progress,
                             )  # fmt: skip
@@ -156,7 +166,7 @@ def _run_study(
         # started at the centre settles (seen: 0/200 searched vs 14/200 random draws
         # unstable for the passivity controller at 2 J on the iiwa). Each restart doubles
         # the population (IPOP's schedule).
-        order = kinds(cfg)
+        order = kinds(cfg, target.family)
         for earlier in order[: order.index(kind)]:
             source += optuna.load_study(
                 study_name=study_name(controller, target.family, target.energy_j, earlier, seed),
@@ -218,17 +228,54 @@ def _run_study(
         ]  # fmt: skip
         outcomes = pool.map(evaluate_task, tasks)
         for trial, spec, p, outcome in zip(batch, specs, params, outcomes, strict=True):
-            for key, value in dataclasses.asdict(outcome).items():
-                trial.set_user_attr(key, value)
-            trial.set_user_attr("spec", spec)
-            if p.get("s0") is not None:
-                trial.set_user_attr("s0", float(p["s0"]))
-            study.tell(trial, outcome.cost)
+            _tell(study, trial, spec, p, outcome)
         done += len(batch)
         wall_s += time.perf_counter() - t0
         study.set_user_attr("wall_s", wall_s)
         if progress:
             print(f"{name}: {done}/{budget}, worst {study.best_value:.3g} rad", flush=True)
+
+
+def _tell(
+    study: Any, trial: Any, spec: dict[str, Any], params: dict[str, Any], outcome: Outcome
+) -> None:
+    """Record an episode's outcome, spec and start phase on its trial, and tell its cost."""
+    for key, value in dataclasses.asdict(outcome).items():
+        trial.set_user_attr(key, value)
+    trial.set_user_attr("spec", spec)
+    if params.get("s0") is not None:
+        trial.set_user_attr("s0", float(params["s0"]))
+    study.tell(trial, outcome.cost)
+
+
+def _run_scan(
+    optuna: Any,
+    storage: Any,
+    pool: ProcessPoolExecutor,
+    cfg: AdversaryConfig,
+    controller: str,
+    target: Searchable,
+    kind: str,
+    seed: int,
+    progress: bool,
+) -> None:
+    """A periodic torque's frequency scan for search seed ``seed``
+    (:func:`train.studies.periodic_scan.run_scan`), from a start phase of the seed's own
+    stream."""
+    name = study_name(controller, target.family, target.energy_j, kind, seed)
+    study = optuna.create_study(
+        study_name=name, storage=storage, direction="maximize", load_if_exists=True,
+        sampler=optuna.samplers.RandomSampler(seed=_draw_seed(seed, SCAN_STREAM)),
+    )  # fmt: skip
+    Running = optuna.trial.TrialState.RUNNING
+    for stale in study.get_trials(deepcopy=False, states=(Running,)):  # an interrupted batch
+        study.tell(stale.number, state=optuna.trial.TrialState.FAIL)
+    phase = float(np.random.default_rng(_draw_seed(seed, SCAN_STREAM)).uniform())
+    t0 = time.perf_counter()
+    run_scan(study, pool, cfg, controller, target, phase, controller_gains(cfg, controller),
+             _tell, progress)  # fmt: skip
+    wall_s = float(study.user_attrs.get("wall_s", 0.0)) + time.perf_counter() - t0
+    study.set_user_attr("wall_s", wall_s)
 
 
 #: The seed stream of the local run's sampler (the global runs' are 2 + r).
@@ -281,16 +328,17 @@ def _write_results(optuna: Any, storage: Any, cfg: AdversaryConfig, out: Path) -
         for family in cfg.families:
             for energy in cfg.energies_j:
                 cell = worst.setdefault(controller, {}).setdefault(family, {})
+                n = Searchable(cfg, family, energy).n
                 key = f"{energy:g}"
                 runs = []
                 for seed in cfg.search_seeds:
                     evaluation = 0
-                    for kind in kinds(cfg):
+                    for kind in kinds(cfg, family):
                         name = study_name(controller, family, energy, kind, seed)
                         study = optuna.load_study(study_name=name, storage=storage)
                         wall_s += float(study.user_attrs.get("wall_s", 0.0))
                         complete = study.get_trials(states=(optuna.trial.TrialState.COMPLETE,))
-                        complete = complete[: run_budget(cfg, kind)]
+                        complete = complete[: run_budget(cfg, kind, n)]
                         runs += complete
                         for t in complete:
                             attrs = dict(t.user_attrs)

@@ -62,6 +62,14 @@ class AdversaryConfig:
     """The local run's initial step, as a fraction of each searched range (CMA-ES works in
     the box scaled to [0, 1]; phases and angles are searched over two periods, so 0.02 is
     4 % of a period)."""
+    scan_points: int = 0
+    """A periodic torque's frequency scan (0: none; ``space`` "period" only): per search
+    seed, before the CMA-ES runs, one episode per joint at each of ``scan_points``
+    log-spaced frequencies, from one start phase, and ``scan_top`` episodes at the
+    frequencies and directions they predict worst (:mod:`train.studies.periodic_scan`):
+    scan_points·n + scan_top episodes beside ``budget``. Impulses and pushes have none."""
+    scan_top: int = 3
+    """Frequencies the scan verifies with a real episode at its predicted worst direction."""
     reset_seed: int = 0
     """Env reset seed of every episode (the start on the path, where ``space`` is "box")."""
     search_seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
@@ -144,6 +152,17 @@ class AdversaryConfig:
             raise InvalidConfigError(
                 f"polish_sigma must lie in (0, 0.5], got {self.polish_sigma!r}"
             )
+        for name in ("scan_points", "scan_top"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise InvalidConfigError(f"{name} must be an integer >= 0, got {value!r}")
+        if self.scan_points and not (3 <= self.scan_points and 1 <= self.scan_top):
+            raise InvalidConfigError(
+                f"a frequency scan needs scan_points >= 3 and scan_top >= 1, got "
+                f"{self.scan_points} and {self.scan_top}"
+            )
+        if self.scan_points and self.space != "period":
+            raise InvalidConfigError("a frequency scan (scan_points > 0) needs space 'period'")
         lo, hi = self.onset_s
         if not (0 <= lo <= hi) or not (0 < self.frequency_hz[0] <= self.frequency_hz[1]):
             raise InvalidConfigError("onset_s and frequency_hz must be (low, high) ranges")
@@ -197,6 +216,7 @@ def saved_config(saved: dict[str, Any]) -> AdversaryConfig:
     saved.setdefault("space", "box")
     saved.setdefault("restarts", 0)
     saved.setdefault("polish_budget", 0)  # a search before the local run
+    saved.setdefault("scan_points", 0)  # a search before the frequency scan
     return AdversaryConfig(**saved)
 
 

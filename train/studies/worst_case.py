@@ -18,6 +18,8 @@ import yaml
 import ptrack_gym  # noqa: F401  (registers the envs)
 from agents.policy import ControllerPolicy
 from agents.registry import make_controller, tuned_rates
+from ptrack_gym.metrics import EpisodeRecord
+from ptrack_gym.paths import ReferencePath
 from ptrack_gym.robots import profile_for_env_id
 from train.evaluation.episode import rollout
 from train.studies.adversary_config import AdversaryConfig, saved_config
@@ -62,6 +64,11 @@ class Searchable:
     def period_s(self) -> float:
         """The period S of the env's (default) path (s)."""
         return float(profile_for_env_id(self.cfg.env_id).path_period_s)
+
+    @property
+    def torque_limits_nm(self) -> tuple[float, ...]:
+        """The robot's joint torque limits (N·m)."""
+        return tuple(profile_for_env_id(self.cfg.env_id).torque_limits_nm)
 
     @property
     def links(self) -> list[str | None]:
@@ -170,20 +177,19 @@ class Outcome:
     peak_joint: int = 0  # the joint (0-based) where |q̇| peaked
 
 
-def evaluate(
+def episode(
     env_id: str,
     controller: str,
-    spec: dict[str, Any],
+    spec: dict[str, Any] | None,
     reset_seed: int,
     episode_s: float,
-    window: tuple[float, float],
     control_hz: float,
-    failure_distance_rad: float,
     gains: str | dict[str, Any] = "default",
     s0: float | None = None,
-) -> Outcome:
-    """One episode of ``controller`` (with ``gains``) under ``spec`` from ``reset_seed``,
-    started on the path at phase ``s0`` (s; None: the reset seed's); deterministic."""
+) -> tuple[EpisodeRecord, ReferencePath]:
+    """One episode of ``controller`` (with ``gains``) under ``spec`` (None: undisturbed)
+    from ``reset_seed``, started on the path at phase ``s0`` (s; None: the reset seed's);
+    deterministic. Returns its record and the env's reference path."""
     steps = round(episode_s * control_hz)
     env = gym.make(
         env_id,
@@ -196,8 +202,16 @@ def evaluate(
         policy = ControllerPolicy(env, make_controller(controller, env, gains))
         options = None if s0 is None else {"s0": float(s0)}
         record, _ = rollout(env, policy, reset_seed, reset_options=options)
+        path = env.unwrapped.path
     finally:
         env.close()
+    return record, path
+
+
+def outcome(
+    record: EpisodeRecord, window: tuple[float, float], failure_distance_rad: float
+) -> Outcome:
+    """What an episode gives the search: its cost over ``window`` (s) and the rest."""
     t, dist = record.t_s, record.path_distance
     inside = (t > window[0]) & (t <= window[1] + 1e-9)
     if record.unstable:
@@ -212,6 +226,24 @@ def evaluate(
         peak_tau_frac=float(np.max(np.abs(record.tau_nm) / record.torque_limits_nm)),
         peak_joint=int(np.argmax(np.max(np.abs(record.qd), axis=0))),
     )
+
+
+def evaluate(
+    env_id: str,
+    controller: str,
+    spec: dict[str, Any],
+    reset_seed: int,
+    episode_s: float,
+    window: tuple[float, float],
+    control_hz: float,
+    failure_distance_rad: float,
+    gains: str | dict[str, Any] = "default",
+    s0: float | None = None,
+) -> Outcome:
+    """One episode of ``controller`` (with ``gains``) under ``spec`` from ``reset_seed``,
+    started on the path at phase ``s0`` (s; None: the reset seed's); deterministic."""
+    record, _ = episode(env_id, controller, spec, reset_seed, episode_s, control_hz, gains, s0)
+    return outcome(record, window, failure_distance_rad)
 
 
 def evaluate_task(args: tuple[Any, ...]) -> Outcome:
