@@ -142,6 +142,7 @@ SCAN = [
     "polish_budget=0",
     "scan_points=4",
     "scan_top=2",
+    "scan_phases=2",
     "search_seeds=[0]",
     "control_hz=250.0",
     "workers=1",
@@ -149,9 +150,10 @@ SCAN = [
 
 
 def test_the_scan_runs_in_the_search_and_resumes_without_repeating(tmp_path, monkeypatch) -> None:
-    """Per seed: the random draws, then 4 frequencies × 2 axis episodes and 2 verified
-    ones (recorded with their prediction), then the CMA-ES run; a scan interrupted after
-    two frequencies resumes where it stopped, and a finished search runs nothing again."""
+    """Per seed: the random draws, then 4 frequencies × 2 axis episodes, 2 more start
+    phases × 2 axis episodes at the frequency predicted worst, 2 + 1 verified ones
+    (recorded with their prediction), then the CMA-ES run; a scan interrupted after two
+    frequencies resumes where it stopped, and a finished search runs nothing again."""
     pytest.importorskip("optuna", reason="the optional 'tune' extra is not installed")
     import optuna
     import pandas as pd
@@ -179,24 +181,30 @@ def test_the_scan_runs_in_the_search_and_resumes_without_repeating(tmp_path, mon
 
     df = pd.read_csv(out / "trials.csv")
     assert list(df["run"].drop_duplicates()) == ["random", "scan", "search0"]
-    assert len(df) == 10 + (4 * 2 + 2) + 10
+    assert len(df) == 10 + (4 * 2 + 2 * 2 + 2 + 1) + 10
     scan = df[df["run"] == "scan"]
     freqs = [yaml.safe_load(spec)["frequency_hz"] for spec in scan["spec"]]
     grid = scan_frequencies((0.5, 8.0), 4)
     for f in grid:  # each frequency's two axis episodes, once each
         assert sum(math.isclose(x, f) for x in freqs[:8]) == 2
+    s0 = scan["s0"].to_numpy()
+    assert len(set(s0[:8])) == 1  # the first stage: one start phase
+    assert len(set(s0[8:12])) == 2 and s0[0] not in set(s0[8:12])  # two more
+    assert len(set(freqs[8:12])) == 1 and any(math.isclose(freqs[8], f) for f in grid)
     storage = JournalStorage(JournalFileBackend(str(out / "optuna.journal")))
     study = optuna.load_study(
         study_name=study_name("passivity", "periodic", 0.3, "scan", 0), storage=storage
     )
-    verified = [study.user_attrs[f"verified{j}"] for j in range(2)]
-    assert [v["frequency_hz"] for v in verified] == pytest.approx(freqs[8:])
-    for v, cost in zip(verified, scan["cost_rad"].iloc[8:], strict=True):
+    verified = [study.user_attrs[key] for key in ("verified0", "verified1", "verified_phase")]
+    assert [v["frequency_hz"] for v in verified] == pytest.approx(freqs[12:])
+    assert verified[2]["frequency_hz"] == pytest.approx(freqs[8])  # the second stage's
+    assert any(math.isclose(verified[2]["start_phase"] * 4.0, x) for x in s0[8:12])
+    for v, cost in zip(verified, scan["cost_rad"].iloc[12:], strict=True):
         assert any(math.isclose(v["frequency_hz"], f) for f in grid)
         assert v["predicted_cost"] > 0 and len(v["weights"]) == 2 and cost > 0
     before = len(study.trials)
     run_search(load_config(None, [*SCAN, f"out={out}"]), resume=True, progress=False)
-    assert len(study.trials) == before == 10  # nothing run again, nothing lost
+    assert len(study.trials) == before == 15  # nothing run again, nothing lost
 
 
 @pytest.mark.parametrize(
@@ -227,5 +235,5 @@ def test_only_a_periodic_torque_is_scanned_and_old_searches_load_without_a_scan(
     cfg = load_config(None, SCAN)
     assert kinds(cfg, "periodic") == ["random", "scan", "search0"]
     assert kinds(cfg, "impulse") == kinds(cfg, "push") == ["random", "search0"]
-    assert run_budget(cfg, "scan", 7) == 4 * 7 + 2
+    assert run_budget(cfg, "scan", 7) == 4 * 7 + 2 + 2 * 7 + 1
     assert saved_config({"env_id": "ptrack_gym/TwoLinkTrack-v0"}).scan_points == 0

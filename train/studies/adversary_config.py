@@ -70,6 +70,11 @@ class AdversaryConfig:
     scan_points·n + scan_top episodes beside ``budget``. Impulses and pushes have none."""
     scan_top: int = 3
     """Frequencies the scan verifies with a real episode at its predicted worst direction."""
+    scan_phases: int = 0
+    """A second stage of the scan: at the frequency the first predicts worst, the axis
+    episodes from this many more start phases (evenly spaced around the path's period), and
+    the worst of them verified — a resonance's strength depends on where on the path the
+    cost window falls: scan_phases·n + 1 episodes more."""
     reset_seed: int = 0
     """Env reset seed of every episode (the start on the path, where ``space`` is "box")."""
     search_seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
@@ -152,7 +157,7 @@ class AdversaryConfig:
             raise InvalidConfigError(
                 f"polish_sigma must lie in (0, 0.5], got {self.polish_sigma!r}"
             )
-        for name in ("scan_points", "scan_top"):
+        for name in ("scan_points", "scan_top", "scan_phases"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise InvalidConfigError(f"{name} must be an integer >= 0, got {value!r}")
@@ -217,6 +222,7 @@ def saved_config(saved: dict[str, Any]) -> AdversaryConfig:
     saved.setdefault("restarts", 0)
     saved.setdefault("polish_budget", 0)  # a search before the local run
     saved.setdefault("scan_points", 0)  # a search before the frequency scan
+    saved.setdefault("scan_phases", 0)  # a scan before its second stage
     return AdversaryConfig(**saved)
 
 

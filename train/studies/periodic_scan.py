@@ -159,6 +159,12 @@ def _axis_params(start_phase: float, frequency_hz: float, n: int) -> list[dict[s
     return out
 
 
+def scan_phases(start_phase: float, phases: int) -> list[float]:
+    """The second stage's start phases (fractions of the period): ``phases`` more, evenly
+    spaced around the period from ``start_phase`` (which the first stage ran)."""
+    return [(start_phase + j / (phases + 1)) % 1.0 for j in range(1, phases + 1)]
+
+
 def run_scan(
     study: Any,
     pool: Any,
@@ -170,66 +176,80 @@ def run_scan(
     tell: Callable[[Any, Any, dict[str, Any], dict[str, Any], Outcome], None],
     progress: bool,
 ) -> None:
-    """The scan of one search seed into ``study`` (module docstring), from ``start_phase``
-    (a fraction of the path period): the axis episodes frequency by frequency, each
-    frequency's (Q, b, c) kept in the study's user attributes, then the verified ones.
-    Resumable: a frequency or a verified episode whose record was written is not run again
-    (an interruption loses at most the batch in flight, never repeats one)."""
+    """The scan of one search seed into ``study`` (module docstring): from ``start_phase``
+    (a fraction of the path period), the axis episodes at every frequency; then, with
+    ``cfg.scan_phases``, the same at the frequency predicted worst from that many more start
+    phases; each point's (Q, b, c) kept in the study's user attributes; then the verified
+    episodes: the ``scan_top`` frequencies of the first stage and the second stage's worst
+    point. Resumable: a point or a verified episode whose record was written is not run
+    again (an interruption loses at most the batch in flight, never repeats one)."""
     n = target.n
-    freqs = scan_frequencies(cfg.frequency_hz, cfg.scan_points)
-    s0 = start_phase * target.period_s
     window, episode_s = target.window({}), target.episode_s()
+    bases: dict[float, FloatArray] = {}  # undisturbed episodes (deterministic: rerun on resume)
 
-    def task(spec: dict[str, Any] | None) -> tuple[Any, ...]:
+    def task(spec: dict[str, Any] | None, phase: float) -> tuple[Any, ...]:
+        s0 = phase * target.period_s
         return (cfg.env_id, controller, spec, cfg.reset_seed, episode_s, window,
                 cfg.control_hz, cfg.failure_distance_rad, gains, s0)  # fmt: skip
 
-    def run(params: list[dict[str, float]], key: str, value: Any = None) -> list[Any]:
+    def run(params: list[dict[str, float]], key: str, phase: float, value: Any = None) -> list[Any]:
         for p in params:
             study.enqueue_trial(p)
         trials = [study.ask() for _ in params]
         found = [target.space(t) for t in trials]
         specs = [target.spec(p) for p in found]
-        results = list(pool.map(scan_task, [task(spec) for spec in specs]))
+        results = list(pool.map(scan_task, [task(spec, phase) for spec in specs]))
         if value is None:
-            value = _form(base, results)
+            value = _form(bases[phase], results)
         study.set_user_attr(key, value)  # written before the trials: never run twice
         for trial, spec, p, (out, _) in zip(trials, specs, found, results, strict=True):
             tell(study, trial, spec, p, out)
         return results
 
-    base: FloatArray | None = None
-    for i, f in enumerate(freqs):
-        if f"scan{i}" in study.user_attrs:
-            continue
-        if base is None:  # the undisturbed episode (deterministic: rerun on a resume)
-            base = pool.submit(scan_task, task(None)).result()[1]
-        run(_axis_params(start_phase, f, n), f"scan{i}")
+    def scan_point(key: str, phase: float, f: float) -> None:
+        if key in study.user_attrs:
+            return
+        if phase not in bases:
+            bases[phase] = pool.submit(scan_task, task(None, phase)).result()[1]
+        run(_axis_params(phase, f, n), key, phase)
         if progress:
-            print(f"{study.study_name}: scanned {f:.3g} Hz ({i + 1}/{len(freqs)})", flush=True)
-    predictions = []
-    for i in range(len(freqs)):
-        form = study.user_attrs[f"scan{i}"]
+            print(f"{study.study_name}: scanned {f:.3g} Hz at phase {phase:.3f}", flush=True)
+
+    def predict(key: str) -> tuple[FloatArray, float]:
+        form = study.user_attrs[key]
         if form["unstable"]:  # an axis episode failed: it is the worst there already
-            predictions.append((np.eye(n)[int(form["axis"])], float(cfg.failure_distance_rad)))
-        else:
-            q_form, b = np.array(form["q"]), np.array(form["b"])
-            predictions.append(worst_weights(q_form, b, float(form["c"])))
-    chosen = top_frequencies([p for _, p in predictions], cfg.scan_top)
+            return np.eye(n)[int(form["axis"])], float(cfg.failure_distance_rad)
+        return worst_weights(np.array(form["q"]), np.array(form["b"]), float(form["c"]))
+
+    freqs = scan_frequencies(cfg.frequency_hz, cfg.scan_points)
+    for i, f in enumerate(freqs):
+        scan_point(f"scan{i}", start_phase, float(f))
+    first = [predict(f"scan{i}") for i in range(len(freqs))]
+    chosen = top_frequencies([p for _, p in first], cfg.scan_top)
+    candidates = [
+        (f"verified{j}", start_phase, float(freqs[i]), *first[i]) for j, i in enumerate(chosen)
+    ]
+    if cfg.scan_phases:
+        f_best = float(freqs[int(np.argmax([p for _, p in first]))])
+        phases = scan_phases(start_phase, cfg.scan_phases)
+        for j, phase in enumerate(phases):
+            scan_point(f"phase{j}", phase, f_best)
+        second = [predict(f"phase{j}") for j in range(len(phases))]
+        j = int(np.argmax([p for _, p in second]))
+        candidates.append(("verified_phase", phases[j], f_best, *second[j]))
     limits = np.asarray(target.torque_limits_nm, dtype=np.float64)
-    for j, i in enumerate(chosen):
-        if f"verified{j}" in study.user_attrs:
+    for key, phase, f, weights, predicted in candidates:
+        if key in study.user_attrs:
             continue
-        weights, predicted = predictions[i]
         direction = direction_for(weights, limits)
-        params = {"start_phase": start_phase, "frequency_hz": float(freqs[i]),
+        params = {"start_phase": phase, "frequency_hz": f,
                   **{f"a{m}": a for m, a in enumerate(sphere_angles(direction))}}  # fmt: skip
-        record = {"frequency_hz": float(freqs[i]), "predicted_cost": predicted,
+        record = {"frequency_hz": f, "start_phase": phase, "predicted_cost": predicted,
                   "weights": [float(w) for w in weights]}  # fmt: skip
-        results = run([params], f"verified{j}", record)
+        results = run([params], key, phase, record)
         if progress:
-            print(f"{study.study_name}: {freqs[i]:.3g} Hz predicted {predicted:.3g} rad, "
-                  f"ran {results[0][0].cost:.3g} rad", flush=True)  # fmt: skip
+            print(f"{study.study_name}: {f:.3g} Hz, phase {phase:.3f}: predicted "
+                  f"{predicted:.3g} rad, ran {results[0][0].cost:.3g} rad", flush=True)  # fmt: skip
 
 
 def _form(base: FloatArray | None, results: list[Any]) -> dict[str, Any]:
