@@ -43,7 +43,7 @@ import time
 import warnings
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import yaml
@@ -132,32 +132,31 @@ def run_search(
     storage = JournalStorage(JournalFileBackend(str(journal)))
     # spawned: no simulator client or thread is inherited
     with worker_pool(worker_count(cfg.workers), "spawn") as pool:
+        ctx = _Context(optuna, storage, pool, cfg, progress)
         for controller in cfg.controllers:
             for family in cfg.families:
                 for energy in cfg.energies_j:
                     target = Searchable(cfg, family, energy)
                     for seed in cfg.search_seeds:
                         for kind in kinds(cfg, family):  # each starts from all run before
-                            run = _run_scan if kind == "scan" else _run_study
-                            run(
-                                optuna, storage, pool, cfg, controller, target, kind, seed,
-                                progress,
-                            )  # fmt: skip
+                            runner = _run_scan if kind == "scan" else _run_study
+                            runner(ctx, controller, target, kind, seed)
     _write_results(optuna, storage, cfg, out)
     return out
 
 
-def _run_study(
-    optuna: Any,
-    storage: Any,
-    pool: ProcessPoolExecutor,
-    cfg: AdversaryConfig,
-    controller: str,
-    target: Searchable,
-    kind: str,
-    seed: int,
-    progress: bool,
-) -> None:
+class _Context(NamedTuple):
+    """What every study of a search runs with."""
+
+    optuna: Any
+    storage: Any
+    pool: ProcessPoolExecutor
+    cfg: AdversaryConfig
+    progress: bool
+
+
+def _run_study(ctx: _Context, controller: str, target: Searchable, kind: str, seed: int) -> None:
+    optuna, storage, pool, cfg, progress = ctx
     name = study_name(controller, target.family, target.energy_j, kind, seed)
     budget = run_budget(cfg, kind)
     source: list[Any] = []
@@ -250,20 +249,11 @@ def _tell(
     study.tell(trial, outcome.cost)
 
 
-def _run_scan(
-    optuna: Any,
-    storage: Any,
-    pool: ProcessPoolExecutor,
-    cfg: AdversaryConfig,
-    controller: str,
-    target: Searchable,
-    kind: str,
-    seed: int,
-    progress: bool,
-) -> None:
+def _run_scan(ctx: _Context, controller: str, target: Searchable, kind: str, seed: int) -> None:
     """A periodic torque's frequency scan for search seed ``seed``
     (:func:`train.studies.periodic_scan.run_scan`), from a start phase of the seed's own
     stream."""
+    optuna, storage, pool, cfg, progress = ctx
     name = study_name(controller, target.family, target.energy_j, kind, seed)
     study = optuna.create_study(
         study_name=name, storage=storage, direction="maximize", load_if_exists=True,
