@@ -252,13 +252,13 @@ def run_scan(
                   f"{predicted:.3g} rad, ran {results[0][0].cost:.3g} rad", flush=True)  # fmt: skip
 
 
-def _form(base: FloatArray | None, results: list[Any]) -> dict[str, Any]:
-    """A frequency's record: (Q, b, c), or the first axis episode that went unstable."""
+def _form(base: FloatArray, results: list[Any]) -> dict[str, Any]:
+    """A point's record: (Q, b, c), or the first axis episode that went unstable (or ended
+    early, so that its window does not match the undisturbed one)."""
     unstable = [
-        k for k, (out, errors) in enumerate(results)
-        if out.unstable or base is None or errors.shape != base.shape
-    ]  # fmt: skip
-    if unstable or base is None:
-        return {"unstable": True, "axis": unstable[0] if unstable else 0}
+        k for k, (out, errors) in enumerate(results) if out.unstable or errors.shape != base.shape
+    ]
+    if unstable:
+        return {"unstable": True, "axis": unstable[0]}
     q_form, b, c = quadratic(base, [errors for _, errors in results])
     return {"unstable": False, "q": q_form.tolist(), "b": b.tolist(), "c": c}
