@@ -118,6 +118,37 @@ def max_mode_frequency(model: RobotModel, q_samples: FloatArray, stiffness: Floa
     return float(np.sqrt(max(np.linalg.eigvalsh(scaled)[:, -1].max(), 0.0)))
 
 
+def spring_modes(
+    model: RobotModel, q_samples: FloatArray, stiffness: FloatArray, damping: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """The modes of the arm held by diagonal springs K = diag(``stiffness``) (N·m/rad) and
+    dampers D = diag(``damping``) (N·m·s/rad) alone, M(q_k) ë + D ė + K e = 0, frozen at
+    each configuration q_k (rows of ``q_samples``, rad): for each eigenvalue λ of
+    [[0, I], [−M⁻¹K, −M⁻¹D]], its natural frequency |λ| (rad/s) and damping ratio
+    −Re λ / |λ| (1 for a real, overdamped λ). Returns two (count, 2n) arrays (frequency,
+    damping ratio), a mode's two conjugate eigenvalues both listed."""
+    k = np.diag(np.asarray(stiffness, dtype=np.float64))
+    d = np.diag(np.asarray(damping, dtype=np.float64))
+    n = k.shape[0]
+    freq, ratio = [], []
+    for q in np.atleast_2d(q_samples):
+        m = model.mass_matrix(q)
+        a = np.block(
+            [[np.zeros((n, n)), np.eye(n)], [-np.linalg.solve(m, k), -np.linalg.solve(m, d)]]
+        )
+        lam = np.linalg.eigvals(a)
+        mag = np.abs(lam)
+        freq.append(mag)
+        ratio.append(
+            np.where(
+                np.abs(lam.imag) > 1e-12 * np.maximum(mag, 1.0),
+                -lam.real / np.maximum(mag, 1e-300),
+                1.0,
+            )
+        )
+    return np.array(freq), np.array(ratio)
+
+
 def path_samples(path: ReferencePath, count: int = 64) -> FloatArray:
     """q_r at ``count`` evenly spaced s over one period of ``path``, (count, n) (rad)."""
     return path.evaluate(np.linspace(0.0, path.period_s, count, endpoint=False))[0]

@@ -7,7 +7,7 @@ path in use (M̄_r, the "mass" of the path-parameter dynamics M_r(s) s̈ = …) 
 period dt:
 
 * K_j = min(ω² · max(M_jj(q_home), m_floor), (α/dt)² M_jj)   spring of φ (N·m/rad)
-* D_j = c K_j dt                                             damper beside φ (N·m·s/rad)
+* D_j = c K_j dt (+ 2 ζ √(K_j M_jj(q_home)) with ζ > 0)      damper beside φ (N·m·s/rad)
 * κ = ω_s² M̄_r,  R = ρ M̄_r,  k_pump = λ / M̄_r ("metric" pump)
 
 then capped for the rate from the path's extremes (:func:`cap_for_rate`): K and D scaled
@@ -15,9 +15,10 @@ together where the fastest coupled mode of M(q)⁻¹K on the path would turn mor
 per sample, R lowered where (R + q_r'ᵀDq_r')/M_r(s) dt would exceed 1.6 on the slowest
 stretch, k_pump lowered where k_pump dt would exceed 0.8. The rates are
 :data:`DEFAULT_RATES` updated by the robot profile's
-``controller_gains["passivity"]`` (ω, ω_s in rad/s; ρ, λ in 1/s; m_floor in kg·m²; c; γ in
-1/s and r̄ for the re-synchronisation); α = :data:`agents.gains.MAX_FREQUENCY_PER_SAMPLE`
-rad per sample (:func:`agents.gains.cap_stiffness`).
+``controller_gains["passivity"]`` (ω, ω_s in rad/s; ρ, λ in 1/s; m_floor in kg·m²; c; ζ
+``damping_ratio``, dimensionless; γ in 1/s and r̄ for the re-synchronisation);
+α = :data:`agents.gains.MAX_FREQUENCY_PER_SAMPLE` rad per sample
+(:func:`agents.gains.cap_stiffness`).
 The study that chose them is ``docs/passivity_gain_study.md``; the discretization, its
 rate limit (:meth:`PassivityController.max_period_s`) and the caps: ``docs/control_rates.md``.
 """
@@ -25,6 +26,7 @@ rate limit (:meth:`PassivityController.max_period_s`) and the caps: ``docs/contr
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -51,6 +53,7 @@ DEFAULT_RATES: dict[str, Any] = {
     "sync_ratio": 0.5,
     "saturation_aware": True,
     "zoh_damping": 1.0,
+    "damping_ratio": 0.0,
 }
 #: The rates one gain scale multiplies (``train.studies.fronts``): the joint and the
 #: phase spring bandwidths (the damping rates ρ, λ stay).
@@ -65,7 +68,7 @@ TUNABLE = {
 }
 #: The paper's law exactly (the ``passivity_paper`` controller): no re-synchronisation of σ,
 #: no saturation-aware reference torque — whatever a robot's defaults or tuned rates say.
-PAPER_LAW = {"sync_rate": 0.0, "saturation_aware": False, "zoh_damping": 0.0}
+PAPER_LAW = {"sync_rate": 0.0, "saturation_aware": False, "zoh_damping": 0.0, "damping_ratio": 0.0}
 
 _PUMPS = ("metric", "paper")
 #: The default and tuned gains run at most this fraction of their stated period limit
@@ -228,13 +231,40 @@ def gains_from_rates(
     ``saturation_aware``."""
     r = rates(DEFAULT_RATES, given, NAME, ctx.profile.controller_gains.get(NAME))
     aware = bool(r.pop("saturation_aware"))
+    zeta = float(r.pop("damping_ratio"))
     tables = tables or passivity_tables(ctx.path, ctx.model)
     inertia = home_inertia_kgm2(ctx.model, ctx.profile)
     gains = PassivityGains.from_rates(
         inertia, tables.mean_m_r, dt_s=ctx.dt_s,
         torque_limits_nm=ctx.profile.torque_limits_nm if aware else None, **r,
     )  # fmt: skip
-    return cap_for_rate(gains, ctx.model, tables, ctx.dt_s)
+    gains = cap_for_rate(gains, ctx.model, tables, ctx.dt_s)
+    if zeta != 0.0:  # a negative or NaN ζ is refused there
+        gains = cap_for_rate(add_joint_damping(gains, inertia, zeta), ctx.model, tables, ctx.dt_s)
+    return gains
+
+
+def add_joint_damping(
+    gains: PassivityGains, inertia_kgm2: FloatArray, zeta: float
+) -> PassivityGains:
+    """``gains`` with 2 ζ √(K_j m_j) added to each D_j: the damping ratio ζ (dimensionless)
+    on each joint's spring-damper taken alone, m_j = ``inertia_kgm2`` (kg·m², e.g.
+    diag M(q_home), not floored). NOT in the paper, and not the zero-order-hold damper
+    c K dt beside it: that one only returns the energy the hold feeds into the spring, so
+    φ's springs are left with a damping ratio of about ω dt / 2 (0.007–0.10 on the four
+    robots at 1 kHz) — transverse to the path the law has almost no dissipation (Ė = −R s̃̇²
+    − ėᵀDė), and a periodic torque at one of those modes resonates
+    (``docs/worst_case.md``). D stays diagonal and ≥ 0, so Ė ≤ −ėᵀDė still holds.
+
+    Raises:
+        InvalidConfigError: ζ negative or not finite.
+    """
+    if not (math.isfinite(zeta) and zeta >= 0.0):
+        raise InvalidConfigError(f"damping_ratio must be >= 0, got {zeta!r}")
+    n = len(inertia_kgm2)
+    m = np.asarray(inertia_kgm2, dtype=np.float64)
+    added = 2.0 * zeta * np.sqrt(gains.stiffness(n) * m)
+    return dataclasses.replace(gains, D=tuple(float(d) for d in gains.damping(n) + added))
 
 
 def cap_for_rate(

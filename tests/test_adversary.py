@@ -149,6 +149,25 @@ def test_a_worst_case_replays_under_another_controller(search) -> None:
     assert len(under) == len(lines) // 2 and f"cost {other.cost:.6g} rad" in "".join(under)
 
 
+def test_a_worst_case_replays_with_other_gain_rates(search) -> None:
+    """``rates``: the searched controller's own rates given explicitly give the searched
+    episode; another rate gives another episode; an unknown rate name is refused."""
+    from ptrack_gym.robots import robot_profile
+
+    worst = search / "worst.yml"
+    entry = yaml.safe_load(worst.read_text())["worst"]["pd_gravity"]["impulse"]["0.6"]
+    omega = robot_profile("two_link").controller_gains["pd_gravity"]["omega"]
+    same = replay(worst, "pd_gravity", "impulse", 0.6, rates={"omega": omega})
+    assert same.cost == entry["cost_rad"]
+    stiffer = replay(worst, "pd_gravity", "impulse", 0.6, rates={"omega": 2.0 * omega})
+    assert np.isfinite(stiffer.cost) and stiffer.cost != entry["cost_rad"]
+    lines = replay_all(worst, rates={"omega": 2.0 * omega})
+    assert f"cost {stiffer.cost:.6g} rad" in "".join(lines)
+    assert all(f"omega={2.0 * omega}" in line for line in lines)
+    with pytest.raises(InvalidConfigError, match="no_such_rate"):
+        replay(worst, "pd_gravity", "impulse", 0.6, rates={"no_such_rate": 1.0})
+
+
 def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> None:
     import shutil
 
@@ -205,6 +224,9 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
         ("space=box;onset_s=[1.0, 1.0]", r"onset_s \[1, 1\] is an empty search range"),
         ("families=[periodic];frequency_hz=[1.0, 1.0]", "frequency_hz .* empty search range"),
         ("gains=fancy", "gains"),
+        ("rates={computed_torque: {omega: 3.0}}", "rates must map searched controllers"),
+        ("rates={pd_gravity: 3.0}", "rates must map searched controllers"),
+        ("rates={pd_gravity: {no_such_rate: 1.0}}", "no_such_rate"),
     ],
 )
 def test_bad_input_is_refused_before_any_episode(tmp_path, override, match, capsys) -> None:
@@ -219,6 +241,25 @@ def test_bad_input_is_refused_before_any_episode(tmp_path, override, match, caps
               "--out", str(tmp_path / "y")])  # fmt: skip
     assert exc.value.code == 2
     assert not (tmp_path / "y").exists()
+
+
+def test_a_search_with_other_gain_rates_runs_and_replays_with_them(tmp_path) -> None:
+    """``rates``: the episodes run the controller with them, ``worst.yml`` records them (a
+    replay reproduces the worst case exactly), the summary names them."""
+    out = tmp_path / "rated"
+    cfg = load_config(
+        None,
+        [*TINY, "budget=10", "polish_budget=0", "search_seeds=[0]",
+         "rates={pd_gravity: {omega: 40.0}}", f"out={out}"],
+    )  # fmt: skip
+    run_search(cfg, progress=False)
+    entry = yaml.safe_load((out / "worst.yml").read_text())["worst"]["pd_gravity"]["impulse"]
+    entry = entry["0.6"]
+    assert entry["gains"] == {"omega": 40.0}
+    assert replay(out / "worst.yml", "pd_gravity", "impulse", 0.6).cost == entry["cost_rad"]
+    default = replay(out / "worst.yml", "pd_gravity", "impulse", 0.6, rates={"omega": 20.0})
+    assert default.cost != entry["cost_rad"]
+    assert "pd_gravity with {'omega': 40.0}" in (out / "summary.md").read_text()
 
 
 def test_tuned_gains_that_do_not_exist_are_refused_before_any_episode(

@@ -104,6 +104,10 @@ def test_a_missing_file_is_a_usage_error_and_a_failure_is_status_1(
     assert exc.value.code == 2
     assert "no_such_controller" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
+        main(["replay", str(tmp_path), "--rate", "damping_ratio"])
+    assert exc.value.code == 2
+    assert "NAME=VALUE" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
         main(["evaluate", "--config", str(tmp_path / "nope.yml")])
     assert exc.value.code == 2
     assert "nope.yml" in capsys.readouterr().err

@@ -202,6 +202,7 @@ def _earlier(ctx: ControlContext, tables: PassivityTables, rates: dict) -> Passi
     """The gains as the earlier discretization built them: no damper, no path-extreme cap."""
     r = {**passivity.DEFAULT_RATES, **ctx.profile.controller_gains.get("passivity", {}), **rates}
     r.pop("zoh_damping")
+    r.pop("damping_ratio")
     aware = r.pop("saturation_aware")
     inertia = np.diag(ctx.model.mass_matrix(ctx.profile.home()))
     return PassivityGains.from_rates(

@@ -3,6 +3,8 @@ CONTROL_LAW.md, checked numerically; robustness of the law at rest; the policy a
 
 from __future__ import annotations
 
+import dataclasses
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -36,23 +38,25 @@ def _closed_loop(model, ctrl, tau_d):
 
 
 @pytest.mark.parametrize(
-    ("k_pump", "tau_d", "sync_rate"),
+    ("k_pump", "tau_d", "sync_rate", "damper"),
     [
-        (0.0, np.zeros(2), 0.0),
-        (4.0, np.zeros(2), 0.0),
-        (0.0, np.array([1.5, -0.8]), 0.0),
-        (0.0, np.zeros(2), 2.0),
+        (0.0, np.zeros(2), 0.0, 0.0),
+        (4.0, np.zeros(2), 0.0, 0.0),
+        (0.0, np.array([1.5, -0.8]), 0.0, 0.0),
+        (0.0, np.zeros(2), 2.0, 0.0),
+        (0.0, np.zeros(2), 0.0, (0.9, 0.3)),
     ],
-    ids=["passive", "pump", "disturbed", "resync"],
+    ids=["passive", "pump", "disturbed", "resync", "damper"],
 )
-def test_theorem_4_1_energy_balance_exact_model(k_pump, tau_d, sync_rate) -> None:
+def test_theorem_4_1_energy_balance_exact_model(k_pump, tau_d, sync_rate, damper) -> None:
     """Along the closed loop integrated to 1e-10 relative accuracy (analytic two-link arm):
-    Ė = −R s̃̇² + pump power + q̇ᵀτ_d (+ the low-speed re-synchronisation's
+    Ė = −R s̃̇² − ėᵀDė + pump power + q̇ᵀτ_d (+ the low-speed re-synchronisation's
     ``sync_power`` when it is on); with k = 0, τ_d = 0 and no re-synchronisation, E is
-    non-increasing."""
+    non-increasing. ``damper``: D beside φ's spring (e.g. ``damping_ratio``'s), whose
+    −ėᵀDė is part of ``dissipation``."""
     model = TwoLinkAnalyticModel()
     tables = PassivityTables(default_path(robot_profile("two_link")), model)
-    gains = PassivityGains(K=20.0, kappa=2.0, R=0.5, k_pump=k_pump, sync_rate=sync_rate)
+    gains = PassivityGains(K=20.0, D=damper, kappa=2.0, R=0.5, k_pump=k_pump, sync_rate=sync_rate)
     ctrl = PassivityController(model, tables, gains)
     s0 = 0.4
     ref = tables.exact(s0)
@@ -77,6 +81,11 @@ def test_theorem_4_1_energy_balance_exact_model(k_pump, tau_d, sync_rate) -> Non
     balance = energy - energy[0] + dissipated - pumped - injected - synced
     assert np.abs(balance).max() < 1e-7
     assert dissipated[-1] > 1e-3  # the check is not vacuous: R s̃̇² did work
+    if damper:  # and the damper's share is not negligible beside R's
+        without = PassivityController(model, tables, dataclasses.replace(gains, D=0.0))
+        r_only = [without.law(x[:2], x[2:4], *x[4:7]).dissipation for x in sol.y.T]
+        with_d = [ctrl.law(x[:2], x[2:4], *x[4:7]).dissipation for x in sol.y.T]
+        assert np.mean(with_d) > 1.5 * np.mean(r_only)
     if sync_rate:
         assert np.abs(synced).max() > 5e-4  # the re-synchronisation's flow is not vacuous
     else:

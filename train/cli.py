@@ -213,9 +213,19 @@ def _replay_parser(p: argparse.ArgumentParser) -> None:
         help="also replay each worst case (same spec, start phase and seed) under these "
         "controllers: is it the controller's worst case, or the disturbance's?",
     )
+    p.add_argument(
+        "--rate",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="replay the searched controller with this gain rate changed (repeatable; value "
+        "read as YAML), e.g. --rate damping_ratio=0.5 for the passivity law",
+    )
 
 
 def _replay(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+    import yaml
+
     from agents.registry import CONTROLLERS
     from ptrack_gym.errors import InvalidConfigError
     from train.studies.adversary import replay_all
@@ -228,7 +238,16 @@ def _replay(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
         raise InvalidConfigError(
             f"unknown controller(s) {unknown} for --under; known: {sorted(CONTROLLERS)}"
         )
-    for line in replay_all(worst, args.under):
+    rates = {}
+    for item in args.rate:
+        name, sep, raw = item.partition("=")
+        if not (sep and name):
+            raise InvalidConfigError(f"--rate {item!r}: give NAME=VALUE")
+        try:
+            rates[name] = yaml.safe_load(raw)
+        except yaml.YAMLError as exc:
+            raise InvalidConfigError(f"--rate {name}: not YAML: {raw!r} ({exc})") from None
+    for line in replay_all(worst, args.under, rates):
         print(line)
     return 0
 

@@ -386,7 +386,9 @@ def _write_results(optuna: Any, storage: Any, cfg: AdversaryConfig, out: Path) -
             else ""
         )
         + f"; {space}; "
-        f"energy {cfg.energy_mode}; {cfg.env_id}. Spread: (max − min) / median of the seeds' "
+        f"energy {cfg.energy_mode}; {cfg.env_id}, {cfg.gains} gains"
+        + "".join(f", {c} with {r}" for c, r in cfg.rates.items())
+        + ". Spread: (max − min) / median of the seeds' "
         f"worst cases. On a bound: a non-wrapping parameter of the {WORST_CHECKED} worst "
         f"episodes within {BOUND_MARGIN:.0%} of its range of a bound.\n"
     )

@@ -35,6 +35,9 @@ class AdversaryConfig:
     """Controller names of ``agents.registry``."""
     gains: str = "default"
     """The controllers' gains: "default" or "tuned" (``agents/tuned``, ``train.studies.tune``)."""
+    rates: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Gain rates by controller, replacing those of ``gains`` (e.g. ``{passivity:
+    {damping_ratio: 0.3}}``): a search of the same controller with other gains."""
     families: list[str] = field(default_factory=lambda: ["impulse"])
     """Disturbance families searched (:data:`FAMILIES`)."""
     energies_j: list[float] = field(default_factory=lambda: [2.0])
@@ -125,6 +128,13 @@ class AdversaryConfig:
             robot = profile_for_env_id(self.env_id).name
             for c in self.controllers:
                 tuned_rates(robot, c)  # raises naming the missing file
+        if not isinstance(self.rates, dict) or not all(
+            c in self.controllers and isinstance(r, dict) and r for c, r in self.rates.items()
+        ):
+            raise InvalidConfigError(
+                f"rates must map searched controllers {self.controllers} to gain rates "
+                f"(name: value), got {self.rates!r}"
+            )
         bad = [f for f in self.families if f not in FAMILIES]
         if not self.families or bad:
             raise InvalidConfigError(

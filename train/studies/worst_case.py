@@ -6,7 +6,7 @@ bit-identically)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -252,10 +252,15 @@ def evaluate_task(args: tuple[Any, ...]) -> Outcome:
 
 def controller_gains(cfg: AdversaryConfig, controller: str) -> str | dict[str, Any]:
     """The gains argument of ``controller``'s episodes: "default", or the tuned gain rates
-    themselves (recorded in ``worst.yml``, so a replay does not depend on a later tuning)."""
+    themselves (recorded in ``worst.yml``, so a replay does not depend on a later tuning),
+    with the config's ``rates`` for it over them."""
+    gains: str | dict[str, Any] = cfg.gains
     if cfg.gains == "tuned":
-        return tuned_rates(profile_for_env_id(cfg.env_id).name, controller)
-    return cfg.gains
+        gains = tuned_rates(profile_for_env_id(cfg.env_id).name, controller)
+    given = cfg.rates.get(controller)
+    if given:
+        gains = {**(gains if isinstance(gains, dict) else {}), **given}
+    return gains
 
 
 def replay(
@@ -264,11 +269,14 @@ def replay(
     family: str,
     energy_j: float,
     under: str | None = None,
+    rates: Mapping[str, Any] | None = None,
 ) -> Outcome:
     """Re-run a worst case of ``worst.yml`` (bit-identical to the searched episode); with
     ``under``, the same disturbance spec, start phase and reset seed under another controller
     (at the search's gains setting: its default, or its own tuned gains). A ``delivered``
-    budget is sized at the onset from that controller's own state, so its work may differ."""
+    budget is sized at the onset from that controller's own state, so its work may differ.
+    ``rates`` (gain rates by name) replace those of the replayed controller's gains: the
+    same case with other gains (e.g. ``{"damping_ratio": 0.5}`` for the passivity law)."""
     data = yaml.safe_load(worst_yml.read_text())
     entry = data["worst"][controller][family][f"{energy_j:g}"]
     cfg = saved_config(yaml.safe_load((worst_yml.parent / "config.yml").read_text()))
@@ -278,6 +286,8 @@ def replay(
     if under is not None and under != controller:
         gains = controller_gains(cfg, under)
         controller = under
+    if rates:
+        gains = {**(gains if isinstance(gains, Mapping) else {}), **rates}
     return evaluate(
         cfg.env_id, controller, spec, cfg.reset_seed, target.episode_s(), target.window(spec),
         cfg.control_hz, cfg.failure_distance_rad, gains, entry.get("s0"),
@@ -292,19 +302,23 @@ def _line(outcome: Outcome) -> str:
     )
 
 
-def replay_all(worst_yml: Path, under: Sequence[str] = ()) -> list[str]:
+def replay_all(
+    worst_yml: Path, under: Sequence[str] = (), rates: Mapping[str, Any] | None = None
+) -> list[str]:
     """Re-run every worst case of a search's ``worst.yml``: one line each, the replayed
     cost beside the searched one (a spec replays bit-identically: the two are equal), then,
     for each controller of ``under``, the same case under that controller (is the worst
-    case the searched controller's, or the disturbance's?)."""
+    case the searched controller's, or the disturbance's?). With ``rates``, the searched
+    controller's gains take them (:func:`replay`) and the lines say so."""
     data = yaml.safe_load(worst_yml.read_text())
     lines = []
+    tag = "".join(f", {k}={v}" for k, v in (rates or {}).items())
     for controller, families in data["worst"].items():
         for family, energies in families.items():
             for energy, entry in energies.items():
-                outcome = replay(worst_yml, controller, family, float(energy))
+                outcome = replay(worst_yml, controller, family, float(energy), rates=rates)
                 lines.append(
-                    f"{controller} {family} {energy} J: {_line(outcome)} "
+                    f"{controller}{tag} {family} {energy} J: {_line(outcome)} "
                     f"(searched cost {entry['cost_rad']:.6g})"
                 )
                 for other in under:
@@ -318,8 +332,13 @@ def check_targets(cfg: AdversaryConfig) -> None:
     checks the spec at the middle of the searched space (before any episode).
 
     Raises:
-        InvalidConfigError: a family or push link the robot's env refuses.
+        InvalidConfigError: a family or push link the robot's env refuses, or gain
+            ``rates`` its controller does not know.
     """
+    env = gym.make(cfg.env_id, control_hz=cfg.control_hz)
+    for controller in cfg.rates:  # unknown rate names and bad values, before any episode
+        make_controller(controller, env, controller_gains(cfg, controller))
+    env.close()
     for family in cfg.families:
         probe = Searchable(cfg, family, cfg.energies_j[0])
         for link in probe.links:
