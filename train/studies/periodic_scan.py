@@ -97,9 +97,17 @@ def direction_for(weights: FloatArray, torque_limits_nm: FloatArray) -> FloatArr
     return x / np.linalg.norm(x)
 
 
+def _cost_squared(
+    q_form: FloatArray, b: FloatArray, c: float, w: FloatArray
+) -> tuple[float, FloatArray]:
+    """wᵀQw + 2bᵀw + c (rad²) and its gradient in w, 2(Qw + b) (Q symmetric)."""
+    qw = q_form @ w
+    return float(w @ qw + 2.0 * b @ w + c), 2.0 * (qw + b)
+
+
 def predicted_cost(q_form: FloatArray, b: FloatArray, c: float, w: FloatArray) -> float:
     """sqrt(wᵀQw + 2bᵀw + c) (rad), the predicted cost under the amplitude weights w."""
-    return math.sqrt(max(float(w @ q_form @ w + 2.0 * b @ w + c), 0.0))
+    return math.sqrt(max(_cost_squared(q_form, b, c, w)[0], 0.0))
 
 
 def worst_weights(q_form: FloatArray, b: FloatArray, c: float) -> tuple[FloatArray, float]:
@@ -111,8 +119,7 @@ def worst_weights(q_form: FloatArray, b: FloatArray, c: float) -> tuple[FloatArr
     def negative(x: FloatArray) -> tuple[float, FloatArray]:
         norm = float(np.linalg.norm(x))
         u = x / norm
-        grad_u = 2.0 * (q_form @ u + b)
-        value = float(u @ q_form @ u + 2.0 * b @ u + c)
+        value, grad_u = _cost_squared(q_form, b, c, u)
         return -value, -(grad_u - (grad_u @ u) * u) / norm
 
     top = np.abs(np.linalg.eigh(q_form)[1][:, -1])
