@@ -207,9 +207,93 @@ def test_the_scan_runs_in_the_search_and_resumes_without_repeating(tmp_path, mon
     assert len(study.trials) == before == 15  # nothing run again, nothing lost
 
 
+def test_golden_max_finds_a_peak_narrower_than_the_grid() -> None:
+    """A Lorentzian of half-width 0.005 in a bracket of width 1 (a lightly damped resonance
+    between two grid points): 20 probes land within 0.002 of its top, each probe once,
+    never worse than the start; the same values give the same probes (a resume)."""
+    from train.studies.periodic_scan import golden_max
+
+    def peak(x: float) -> float:
+        return 1.0 / (1.0 + ((x - 0.3712) / 0.005) ** 2)
+
+    probed: list[tuple[int, float]] = []
+
+    def evaluate(k: int, x: float) -> float:
+        probed.append((k, x))
+        return peak(x)
+
+    x, fx = golden_max(0.0, 0.5, 1.0, peak(0.5), evaluate, 20)
+    assert abs(x - 0.3712) < 0.002 and fx == peak(x) and fx > 0.9
+    assert [k for k, _ in probed] == list(range(20))
+    assert all(0.0 < p < 1.0 for _, p in probed)
+    again: list[tuple[int, float]] = []
+    golden_max(0.0, 0.5, 1.0, peak(0.5), lambda k, u: again.append((k, u)) or peak(u), 20)
+    assert again == probed
+    flat, value = golden_max(0.0, 0.5, 1.0, 2.0, lambda k, u: 1.0, 5)  # nothing better
+    assert (flat, value) == (0.5, 2.0)
+
+
+def test_grid_bracket_takes_the_neighbours_or_the_range() -> None:
+    from train.studies.periodic_scan import grid_bracket
+
+    grid = scan_frequencies((0.5, 8.0), 4)
+    assert grid_bracket(grid, 0, (0.5, 8.0)) == (0.5, grid[1])
+    assert grid_bracket(grid, 2, (0.5, 8.0)) == (grid[1], grid[3])
+    assert grid_bracket(grid, 3, (0.5, 8.0)) == (grid[2], 8.0)
+
+
+def test_the_refined_scan_verifies_refined_frequencies_and_phases_at_two(tmp_path) -> None:
+    """``scan_refine=2``, ``scan_phase_top=2``: per chosen frequency two probes inside its
+    grid neighbours, the verified episode at the best of the three (by prediction), the
+    second stage at the two worst; the episode count is ``run_budget``'s; a finished search
+    runs nothing again."""
+    pytest.importorskip("optuna", reason="the optional 'tune' extra is not installed")
+    import optuna
+    import pandas as pd
+    import yaml
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    from train.studies.adversary import load_config, run_budget, run_search, study_name
+
+    out = tmp_path / "refined"
+    args = [*SCAN, "scan_refine=2", "scan_phase_top=2", f"out={out}"]
+    cfg = load_config(None, args)
+    run_search(cfg, progress=False)
+    df = pd.read_csv(out / "trials.csv")
+    scan = df[df["run"] == "scan"]
+    assert len(scan) == run_budget(cfg, "scan", 2) == 4 * 2 + 2 + 2 * 2 * 2 + (2 * 2 + 1) * 2
+    storage = JournalStorage(JournalFileBackend(str(out / "optuna.journal")))
+    study = optuna.load_study(
+        study_name=study_name("passivity", "periodic", 0.3, "scan", 0), storage=storage
+    )
+    attrs = study.user_attrs
+    grid = scan_frequencies((0.5, 8.0), 4)
+    freqs = [yaml.safe_load(spec)["frequency_hz"] for spec in scan["spec"]]
+    for j in range(2):
+        assert f"refine{j}_0" in attrs and f"refine{j}_1" in attrs
+        probes = freqs[8 + 4 * j : 8 + 4 * (j + 1)]  # two probes x two joints
+        assert not any(math.isclose(p, g) for p in probes for g in grid)
+        assert all(0.5 < p < 8.0 for p in probes)
+        v = attrs[f"verified{j}"]
+        assert any(math.isclose(v["frequency_hz"], f) for f in [*grid, *probes])
+    stages = [attrs["verified_phase"], attrs["verified_phase1"]]
+    assert stages[0]["frequency_hz"] != stages[1]["frequency_hz"]
+    assert {s["frequency_hz"] for s in stages} <= {
+        attrs[f"verified{j}"]["frequency_hz"] for j in range(2)
+    }
+    assert stages[0]["predicted_cost"] > 0 and stages[1]["predicted_cost"] > 0
+    before = len(study.trials)
+    run_search(load_config(None, args), resume=True, progress=False)
+    assert len(study.trials) == before
+
+
 @pytest.mark.parametrize(
     ("override", "match"),
     [
+        ("scan_refine=-1", "scan_refine must be an integer >= 0"),
+        ("scan_phase_top=0", r"scan_phase_top must lie in \[1, scan_top = 2\]"),
+        ("scan_phase_top=3", r"scan_phase_top must lie in \[1, scan_top = 2\]"),
         ("scan_points=2", "scan_points >= 3"),
         ("scan_top=0", "scan_top >= 1"),
         ("scan_points=-1", "scan_points must be an integer"),
@@ -236,4 +320,7 @@ def test_only_a_periodic_torque_is_scanned_and_old_searches_load_without_a_scan(
     assert kinds(cfg, "periodic") == ["random", "scan", "search0"]
     assert kinds(cfg, "impulse") == kinds(cfg, "push") == ["random", "search0"]
     assert run_budget(cfg, "scan", 7) == 4 * 7 + 2 + 2 * 7 + 1
+    refined = load_config(None, [*SCAN, "scan_refine=3", "scan_phase_top=2"])
+    assert run_budget(refined, "scan", 7) == 4 * 7 + 2 + 3 * 7 * 2 + (2 * 7 + 1) * 2
+    assert saved_config({"env_id": "ptrack_gym/TwoLinkTrack-v0"}).scan_refine == 0
     assert saved_config({"env_id": "ptrack_gym/TwoLinkTrack-v0"}).scan_points == 0

@@ -93,15 +93,17 @@ def kinds(cfg: AdversaryConfig, family: str) -> list[str]:
 
 def run_budget(cfg: AdversaryConfig, kind: str, n: int = 0) -> int:
     """Episodes of one study: ``budget`` random ones; the searched ``budget`` split over the
-    CMA-ES runs (the remainder to the last); a scan's scan_points·n + scan_top, and
-    scan_phases·n + 1 for its second stage (n joints)."""
+    CMA-ES runs (the remainder to the last); a scan's scan_points·n + scan_top, its
+    refinement's scan_refine·n·scan_top, and (scan_phases·n + 1)·scan_phase_top for its
+    second stage (n joints)."""
     if kind == "random":
         return cfg.budget
     if kind == "polish":
         return cfg.polish_budget
     if kind == "scan":
-        second = cfg.scan_phases * n + 1 if cfg.scan_phases else 0
-        return cfg.scan_points * n + cfg.scan_top + second
+        second = (cfg.scan_phases * n + 1) * cfg.scan_phase_top if cfg.scan_phases else 0
+        refine = cfg.scan_refine * n * cfg.scan_top
+        return cfg.scan_points * n + cfg.scan_top + refine + second
     runs, r = cfg.restarts + 1, int(kind.removeprefix("search"))
     share = cfg.budget // runs
     return share + (cfg.budget - share * runs if r == runs - 1 else 0)

@@ -78,6 +78,14 @@ class AdversaryConfig:
     episodes from this many more start phases (evenly spaced around the path's period), and
     the worst of them verified — a resonance's strength depends on where on the path the
     cost window falls: scan_phases·n + 1 episodes more."""
+    scan_refine: int = 0
+    """Golden-section steps in log-frequency around each of the ``scan_top`` frequencies,
+    between its grid neighbours, on the predicted cost, before it is verified (0: none): a
+    lightly damped resonance is narrower than the grid's cells (the passivity law's spring
+    modes, ``docs/worst_case.md#spring-modes``): scan_refine·n·scan_top episodes more."""
+    scan_phase_top: int = 1
+    """How many of the scan's frequencies (the worst predicted first) get the second stage
+    (``scan_phases``): seeds that rank two resonances differently then still search both."""
     reset_seed: int = 0
     """Env reset seed of every episode (the start on the path, where ``space`` is "box")."""
     search_seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
@@ -167,7 +175,7 @@ class AdversaryConfig:
             raise InvalidConfigError(
                 f"polish_sigma must lie in (0, 0.5], got {self.polish_sigma!r}"
             )
-        for name in ("scan_points", "scan_top", "scan_phases"):
+        for name in ("scan_points", "scan_top", "scan_phases", "scan_refine", "scan_phase_top"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise InvalidConfigError(f"{name} must be an integer >= 0, got {value!r}")
@@ -175,6 +183,11 @@ class AdversaryConfig:
             raise InvalidConfigError(
                 f"a frequency scan needs scan_points >= 3 and scan_top >= 1, got "
                 f"{self.scan_points} and {self.scan_top}"
+            )
+        if self.scan_points and not 1 <= self.scan_phase_top <= self.scan_top:
+            raise InvalidConfigError(
+                f"scan_phase_top must lie in [1, scan_top = {self.scan_top}], "
+                f"got {self.scan_phase_top}"
             )
         if self.scan_points and self.space != "period":
             raise InvalidConfigError("a frequency scan (scan_points > 0) needs space 'period'")

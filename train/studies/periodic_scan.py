@@ -152,6 +152,45 @@ def top_frequencies(predicted: Sequence[float], top: int) -> list[int]:
     return order[:top]
 
 
+#: The golden section's interior fraction, (3 − √5)/2.
+GOLDEN = (3.0 - math.sqrt(5.0)) / 2.0
+
+
+def golden_max(
+    lo: float,
+    mid: float,
+    hi: float,
+    value_mid: float,
+    evaluate: Callable[[int, float], float],
+    steps: int,
+) -> tuple[float, float]:
+    """Golden-section search for a maximum of ``evaluate`` on [lo, hi], from the interior
+    point ``mid`` whose value is ``value_mid``: each of ``steps`` probes goes into the larger
+    side of the bracket, ``evaluate(k, x)`` for the k-th probe; returns the best point and
+    its value (never worse than ``mid``'s). Deterministic in the values, so a resumed run
+    probes the same points."""
+    a, x, b, fx = lo, mid, hi, value_mid
+    for k in range(steps):
+        u = x - GOLDEN * (x - a) if x - a > b - x else x + GOLDEN * (b - x)
+        fu = evaluate(k, u)
+        if fu > fx:
+            a, b = (a, x) if u < x else (x, b)
+            x, fx = u, fu
+        else:
+            a, b = (u, b) if u < x else (a, u)
+    return x, fx
+
+
+def grid_bracket(
+    freqs: FloatArray, i: int, frequency_hz: tuple[float, float]
+) -> tuple[float, float]:
+    """The frequencies (Hz) around grid point ``i``: its neighbours, or the searched range's
+    bound beyond the grid's ends."""
+    lo = float(freqs[i - 1]) if i > 0 else float(frequency_hz[0])
+    hi = float(freqs[i + 1]) if i < len(freqs) - 1 else float(frequency_hz[1])
+    return lo, hi
+
+
 def _axis_params(start_phase: float, frequency_hz: float, n: int) -> list[dict[str, float]]:
     """The trial parameters of the n axis episodes at one frequency (x = e_k)."""
     out = []
@@ -184,12 +223,15 @@ def run_scan(
     progress: bool,
 ) -> None:
     """The scan of one search seed into ``study`` (module docstring): from ``start_phase``
-    (a fraction of the path period), the axis episodes at every frequency; then, with
-    ``cfg.scan_phases``, the same at the frequency predicted worst from that many more start
-    phases; each point's (Q, b, c) kept in the study's user attributes; then the verified
-    episodes: the ``scan_top`` frequencies of the first stage and the second stage's worst
-    point. Resumable: a point or a verified episode whose record was written is not run
-    again (an interruption loses at most the batch in flight, never repeats one)."""
+    (a fraction of the path period), the axis episodes at every frequency; the
+    ``scan_top`` frequencies predicted worst (:func:`top_frequencies`), each refined by
+    ``cfg.scan_refine`` golden-section steps in log-frequency between its grid neighbours
+    (:func:`golden_max`); then, with ``cfg.scan_phases``, the axis episodes at the
+    ``cfg.scan_phase_top`` worst of them from that many more start phases; each point's
+    (Q, b, c) kept in the study's user attributes; then the verified episodes: the
+    ``scan_top`` (refined) frequencies and each second stage's worst point. Resumable: a
+    point or a verified episode whose record was written is not run again (an interruption
+    loses at most the batch in flight, never repeats one)."""
     n = target.n
     window, episode_s = target.window({}), target.episode_s()
     bases: dict[float, FloatArray] = {}  # undisturbed episodes (deterministic: rerun on resume)
@@ -233,17 +275,35 @@ def run_scan(
         scan_point(f"scan{i}", start_phase, float(f))
     first = [predict(f"scan{i}") for i in range(len(freqs))]
     chosen = top_frequencies([p for _, p in first], cfg.scan_top)
-    candidates = [
-        (f"verified{j}", start_phase, float(freqs[i]), *first[i]) for j, i in enumerate(chosen)
-    ]
+
+    def refine(j: int, i: int) -> tuple[float, FloatArray, float]:
+        """Grid point i (the j-th chosen), refined: (Hz, weights, predicted cost)."""
+        probes = {math.log(float(freqs[i])): first[i]}
+
+        def probe(k: int, log_f: float) -> float:
+            key = f"refine{j}_{k}"
+            scan_point(key, start_phase, math.exp(log_f))
+            probes[log_f] = predict(key)
+            return probes[log_f][1]
+
+        lo, hi = grid_bracket(freqs, i, cfg.frequency_hz)
+        mid = math.log(float(freqs[i]))
+        log_f, _ = golden_max(math.log(lo), mid, math.log(hi), first[i][1], probe, cfg.scan_refine)
+        return (float(freqs[i]) if log_f == mid else math.exp(log_f), *probes[log_f])
+
+    refined = [refine(j, i) for j, i in enumerate(chosen)]
+    candidates = [(f"verified{j}", start_phase, *r) for j, r in enumerate(refined)]
     if cfg.scan_phases:
-        f_best = float(freqs[int(np.argmax([p for _, p in first]))])
+        # the first keeps the single stage's keys: a search from before scan_phase_top resumes
+        by_cost = sorted(range(len(refined)), key=lambda j: -refined[j][2])
         phases = scan_phases(start_phase, cfg.scan_phases)
-        for j, phase in enumerate(phases):
-            scan_point(f"phase{j}", phase, f_best)
-        second = [predict(f"phase{j}") for j in range(len(phases))]
-        j = int(np.argmax([p for _, p in second]))
-        candidates.append(("verified_phase", phases[j], f_best, *second[j]))
+        for t, j in enumerate(by_cost[: cfg.scan_phase_top]):
+            f_t, tag = refined[j][0], "" if t == 0 else f"{t}_"
+            for m, phase in enumerate(phases):
+                scan_point(f"phase{tag}{m}", phase, f_t)
+            second = [predict(f"phase{tag}{m}") for m in range(len(phases))]
+            m = int(np.argmax([p for _, p in second]))
+            candidates.append((f"verified_phase{tag.rstrip('_')}", phases[m], f_t, *second[m]))
     limits = np.asarray(target.torque_limits_nm, dtype=np.float64)
     for key, phase, f, weights, predicted in candidates:
         if key in study.user_attrs:
