@@ -694,7 +694,15 @@ def build(
 def build_paper(
     ctx: ControlContext, gains: PassivityGains | Mapping[str, Any] | None = None
 ) -> PassivityController:
-    """The paper's law exactly (:data:`PAPER_LAW`) with the robot's (or the given) rates."""
+    """The paper's law exactly (:data:`PAPER_LAW`) with the robot's (or the given) rates;
+    given rates that :data:`PAPER_LAW` fixes otherwise are refused (they could not act)."""
+    if isinstance(gains, Mapping):
+        clash = sorted(k for k, v in PAPER_LAW.items() if k in gains and gains[k] != v)
+        if clash:
+            raise InvalidConfigError(
+                f"the paper's law fixes {', '.join(f'{k}={PAPER_LAW[k]!r}' for k in clash)}; "
+                f"use the 'passivity' controller for other values"
+            )
     if isinstance(gains, PassivityGains):
         if gains.sync_rate or gains.torque_limits_nm is not None or np.any(np.asarray(gains.D)):
             raise InvalidConfigError(

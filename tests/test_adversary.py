@@ -247,12 +247,7 @@ def test_a_search_with_other_gain_rates_runs_and_replays_with_them(tmp_path) -> 
     """``rates``: the episodes run the controller with them, ``worst.yml`` records them (a
     replay reproduces the worst case exactly), the summary names them."""
     out = tmp_path / "rated"
-    cfg = load_config(
-        None,
-        [*TINY, "budget=10", "polish_budget=0", "search_seeds=[0]",
-         "rates={pd_gravity: {omega: 40.0}}", f"out={out}"],
-    )  # fmt: skip
-    run_search(cfg, progress=False)
+    run_search(load_config(None, cfg_args(out)), progress=False)
     entry = yaml.safe_load((out / "worst.yml").read_text())["worst"]["pd_gravity"]["impulse"]
     entry = entry["0.6"]
     assert entry["gains"] == {"omega": 40.0}
@@ -260,6 +255,22 @@ def test_a_search_with_other_gain_rates_runs_and_replays_with_them(tmp_path) -> 
     default = replay(out / "worst.yml", "pd_gravity", "impulse", 0.6, rates={"omega": 20.0})
     assert default.cost != entry["cost_rad"]
     assert "pd_gravity with {'omega': 40.0}" in (out / "summary.md").read_text()
+    # a resume with other rates, or with rates over a search saved before they existed
+    # (it ran without), would mix two controllers in one journal: refused
+    other = [a.replace("40.0", "30.0") for a in cfg_args(out)]
+    with pytest.raises(InvalidConfigError, match="different settings"):
+        run_search(load_config(None, other), resume=True, progress=False)
+    saved = yaml.safe_load((out / "config.yml").read_text())
+    del saved["rates"]
+    (out / "config.yml").write_text(yaml.safe_dump(saved))
+    with pytest.raises(InvalidConfigError, match="different settings"):
+        run_search(load_config(None, cfg_args(out)), resume=True, progress=False)
+
+
+def cfg_args(out):
+    """The rated search's settings (``test_a_search_with_other_gain_rates_…``)."""
+    return [*TINY, "budget=10", "polish_budget=0", "search_seeds=[0]",
+            "rates={pd_gravity: {omega: 40.0}}", f"out={out}"]  # fmt: skip
 
 
 def test_tuned_gains_that_do_not_exist_are_refused_before_any_episode(

@@ -270,8 +270,22 @@ def test_the_refined_scan_verifies_refined_frequencies_and_phases_at_two(tmp_pat
     attrs = study.user_attrs
     grid = scan_frequencies((0.5, 8.0), 4)
     freqs = [yaml.safe_load(spec)["frequency_hz"] for spec in scan["spec"]]
+    complete = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    assert len(complete) == len(study.trials) == run_budget(cfg, "scan", 2)  # none cut off
+    from train.studies.periodic_scan import top_frequencies, worst_weights
+
+    def predicted(key: str) -> float:  # a point's predicted worst cost, from its record
+        form = attrs[key]
+        if form["unstable"]:
+            return cfg.failure_distance_rad
+        return worst_weights(np.array(form["q"]), np.array(form["b"]), form["c"])[1]
+
+    chosen = top_frequencies([predicted(f"scan{i}") for i in range(4)], 2)
     for j in range(2):
         assert f"refine{j}_0" in attrs and f"refine{j}_1" in attrs
+        keys = [f"scan{chosen[j]}", f"refine{j}_0", f"refine{j}_1"]
+        best = max(predicted(key) for key in keys)  # the verified point: the best of three
+        assert attrs[f"verified{j}"]["predicted_cost"] == pytest.approx(best, rel=1e-12)
         probes = freqs[8 + 4 * j : 8 + 4 * (j + 1)]  # two probes x two joints
         assert not any(math.isclose(p, g) for p in probes for g in grid)
         assert all(0.5 < p < 8.0 for p in probes)
@@ -294,6 +308,7 @@ def test_the_refined_scan_verifies_refined_frequencies_and_phases_at_two(tmp_pat
         ("scan_refine=-1", "scan_refine must be an integer >= 0"),
         ("scan_phase_top=0", r"scan_phase_top must lie in \[1, scan_top = 2\]"),
         ("scan_phase_top=3", r"scan_phase_top must lie in \[1, scan_top = 2\]"),
+        ("scan_top=5", r"scan_top \(5\) must not exceed scan_points \(4\)"),
         ("scan_points=2", "scan_points >= 3"),
         ("scan_top=0", "scan_top >= 1"),
         ("scan_points=-1", "scan_points must be an integer"),

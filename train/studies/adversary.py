@@ -109,6 +109,13 @@ def run_budget(cfg: AdversaryConfig, kind: str, n: int = 0) -> int:
     return share + (cfg.budget - share * runs if r == runs - 1 else 0)
 
 
+#: What a search's settings were before its ``config.yml`` recorded them (compared on resume).
+SETTINGS_BEFORE = {
+    "space": "box", "restarts": 0, "scan_points": 0, "scan_phases": 0, "scan_refine": 0,
+    "scan_phase_top": 1, "rates": {},
+}  # fmt: skip
+
+
 def run_search(
     cfg: AdversaryConfig, resume: bool = False, progress: bool = True, force: bool = False
 ) -> Path:
@@ -128,6 +135,7 @@ def run_search(
         # a resume may extend the budget (each run grows) or add or extend the local run
         free=("workers", "out", "budget", "polish_budget"),
         saved_required=False,
+        defaults=SETTINGS_BEFORE,  # a search saved before a setting existed ran with these
     )  # fmt: skip
     out, journal = run.out, run.results
     optuna.logging.set_verbosity(optuna.logging.WARNING)

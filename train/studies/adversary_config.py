@@ -184,6 +184,10 @@ class AdversaryConfig:
                 f"a frequency scan needs scan_points >= 3 and scan_top >= 1, got "
                 f"{self.scan_points} and {self.scan_top}"
             )
+        if self.scan_points and self.scan_top > self.scan_points:
+            raise InvalidConfigError(
+                f"scan_top ({self.scan_top}) must not exceed scan_points ({self.scan_points})"
+            )
         if self.scan_points and not 1 <= self.scan_phase_top <= self.scan_top:
             raise InvalidConfigError(
                 f"scan_phase_top must lie in [1, scan_top = {self.scan_top}], "
