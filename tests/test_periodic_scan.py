@@ -243,10 +243,11 @@ def test_grid_bracket_takes_the_neighbours_or_the_range() -> None:
 
 
 def test_the_refined_scan_verifies_refined_frequencies_and_phases_at_two(tmp_path) -> None:
-    """``scan_refine=2``, ``scan_phase_top=2``: per chosen frequency two probes inside its
-    grid neighbours, the verified episode at the best of the three (by prediction), the
-    second stage at the two worst; the episode count is ``run_budget``'s; a finished search
-    runs nothing again."""
+    """``scan_refine=2``, ``scan_phase_top=2``, ``scan_phase_refine=2``: per chosen
+    frequency two probes inside its grid neighbours, the verified episode at the best of the
+    three (by prediction); the second stage at the two worst, each refined by two probes at
+    its worst start phase; the episode count is ``run_budget``'s; a finished search runs
+    nothing again."""
     pytest.importorskip("optuna", reason="the optional 'tune' extra is not installed")
     import optuna
     import pandas as pd
@@ -257,12 +258,12 @@ def test_the_refined_scan_verifies_refined_frequencies_and_phases_at_two(tmp_pat
     from train.studies.adversary import load_config, run_budget, run_search, study_name
 
     out = tmp_path / "refined"
-    args = [*SCAN, "scan_refine=2", "scan_phase_top=2", f"out={out}"]
+    args = [*SCAN, "scan_refine=2", "scan_phase_top=2", "scan_phase_refine=2", f"out={out}"]
     cfg = load_config(None, args)
     run_search(cfg, progress=False)
     df = pd.read_csv(out / "trials.csv")
     scan = df[df["run"] == "scan"]
-    assert len(scan) == run_budget(cfg, "scan", 2) == 4 * 2 + 2 + 2 * 2 * 2 + (2 * 2 + 1) * 2
+    assert len(scan) == run_budget(cfg, "scan", 2) == 4 * 2 + 2 + 2 * 2 * 2 + (2 * 2 + 1 + 4) * 2
     storage = JournalStorage(JournalFileBackend(str(out / "optuna.journal")))
     study = optuna.load_study(
         study_name=study_name("passivity", "periodic", 0.3, "scan", 0), storage=storage
@@ -291,11 +292,18 @@ def test_the_refined_scan_verifies_refined_frequencies_and_phases_at_two(tmp_pat
         assert all(0.5 < p < 8.0 for p in probes)
         v = attrs[f"verified{j}"]
         assert any(math.isclose(v["frequency_hz"], f) for f in [*grid, *probes])
+    # each second stage, refined in frequency at its worst start phase: the verified point
+    # is the best of that phase's point and its two probes, from that phase
+    for t, (tag, verified) in enumerate([("", "verified_phase"), ("1_", "verified_phase1")]):
+        phase_keys = [f"phase{tag}{m}" for m in range(2)]
+        worst_phase = max(phase_keys, key=predicted)
+        keys = [worst_phase, f"rephase{t}_0", f"rephase{t}_1"]
+        assert attrs[verified]["predicted_cost"] == pytest.approx(
+            max(predicted(k) for k in keys), rel=1e-12
+        )
     stages = [attrs["verified_phase"], attrs["verified_phase1"]]
     assert stages[0]["frequency_hz"] != stages[1]["frequency_hz"]
-    assert {s["frequency_hz"] for s in stages} <= {
-        attrs[f"verified{j}"]["frequency_hz"] for j in range(2)
-    }
+    assert all(0.5 <= s["frequency_hz"] <= 8.0 for s in stages)
     assert stages[0]["predicted_cost"] > 0 and stages[1]["predicted_cost"] > 0
     before = len(study.trials)
     run_search(load_config(None, args), resume=True, progress=False)

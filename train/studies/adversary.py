@@ -94,14 +94,15 @@ def kinds(cfg: AdversaryConfig, family: str) -> list[str]:
 def run_budget(cfg: AdversaryConfig, kind: str, n: int = 0) -> int:
     """Episodes of one study: ``budget`` random ones; the searched ``budget`` split over the
     CMA-ES runs (the remainder to the last); a scan's scan_points·n + scan_top, its
-    refinement's scan_refine·n·scan_top, and (scan_phases·n + 1)·scan_phase_top for its
-    second stage (n joints)."""
+    refinement's scan_refine·n·scan_top, and (scan_phases·n + 1 + scan_phase_refine·n)·
+    scan_phase_top for its second stage (n joints)."""
     if kind == "random":
         return cfg.budget
     if kind == "polish":
         return cfg.polish_budget
     if kind == "scan":
-        second = (cfg.scan_phases * n + 1) * cfg.scan_phase_top if cfg.scan_phases else 0
+        per_stage = cfg.scan_phases * n + 1 + cfg.scan_phase_refine * n
+        second = per_stage * cfg.scan_phase_top if cfg.scan_phases else 0
         refine = cfg.scan_refine * n * cfg.scan_top
         return cfg.scan_points * n + cfg.scan_top + refine + second
     runs, r = cfg.restarts + 1, int(kind.removeprefix("search"))
@@ -112,7 +113,7 @@ def run_budget(cfg: AdversaryConfig, kind: str, n: int = 0) -> int:
 #: What a search's settings were before its ``config.yml`` recorded them (compared on resume).
 SETTINGS_BEFORE = {
     "space": "box", "restarts": 0, "scan_points": 0, "scan_phases": 0, "scan_refine": 0,
-    "scan_phase_top": 1, "rates": {},
+    "scan_phase_top": 1, "scan_phase_refine": 0, "rates": {},
 }  # fmt: skip
 
 

@@ -83,6 +83,11 @@ class AdversaryConfig:
     between its grid neighbours, on the predicted cost, before it is verified (0: none): a
     lightly damped resonance is narrower than the grid's cells (the passivity law's spring
     modes, ``docs/worst_case.md#spring-modes``): scan_refine·n·scan_top episodes more."""
+    scan_phase_refine: int = 0
+    """Golden-section steps in log-frequency after each second stage, at its worst start
+    phase, within two grid cells either side of its frequency (0: none): where on the path
+    the cost window falls moves a resonance's peak (the Panda's: 7 Hz from one start phase,
+    9.4 Hz from others): scan_phase_refine·n·scan_phase_top episodes more."""
     scan_phase_top: int = 1
     """How many of the scan's frequencies (the worst predicted first) get the second stage
     (``scan_phases``): seeds that rank two resonances differently then still search both."""
@@ -175,7 +180,8 @@ class AdversaryConfig:
             raise InvalidConfigError(
                 f"polish_sigma must lie in (0, 0.5], got {self.polish_sigma!r}"
             )
-        for name in ("scan_points", "scan_top", "scan_phases", "scan_refine", "scan_phase_top"):
+        for name in ("scan_points", "scan_top", "scan_phases", "scan_refine", "scan_phase_top",
+                     "scan_phase_refine"):  # fmt: skip
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise InvalidConfigError(f"{name} must be an integer >= 0, got {value!r}")

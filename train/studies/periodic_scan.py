@@ -276,20 +276,43 @@ def run_scan(
     first = [predict(f"scan{i}") for i in range(len(freqs))]
     chosen = top_frequencies([p for _, p in first], cfg.scan_top)
 
-    def refine(j: int, i: int) -> tuple[float, FloatArray, float]:
-        """Grid point i (the j-th chosen), refined: (Hz, weights, predicted cost)."""
-        probes = {math.log(float(freqs[i])): first[i]}
+    def golden(
+        key: str,
+        phase: float,
+        f: float,
+        at_f: tuple[FloatArray, float],
+        bracket: tuple[float, float],
+        steps: int,
+    ) -> tuple[float, FloatArray, float]:
+        """The best of ``steps`` golden-section probes in log-frequency within ``bracket``
+        (Hz) from ``f`` (whose prediction is ``at_f``), from start phase ``phase``:
+        (Hz, weights, predicted cost); probe k's point is ``{key}_{k}``."""
+        probes = {math.log(f): at_f}
 
         def probe(k: int, log_f: float) -> float:
-            key = f"refine{j}_{k}"
-            scan_point(key, start_phase, math.exp(log_f))
-            probes[log_f] = predict(key)
+            scan_point(f"{key}_{k}", phase, math.exp(log_f))
+            probes[log_f] = predict(f"{key}_{k}")
             return probes[log_f][1]
 
-        lo, hi = grid_bracket(freqs, i, cfg.frequency_hz)
-        mid = math.log(float(freqs[i]))
-        log_f, _ = golden_max(math.log(lo), mid, math.log(hi), first[i][1], probe, cfg.scan_refine)
-        return (float(freqs[i]) if log_f == mid else math.exp(log_f), *probes[log_f])
+        mid = math.log(f)
+        lo, hi = math.log(bracket[0]), math.log(bracket[1])
+        log_f, _ = golden_max(lo, mid, hi, at_f[1], probe, steps)
+        return (f if log_f == mid else math.exp(log_f), *probes[log_f])
+
+    def refine(j: int, i: int) -> tuple[float, FloatArray, float]:
+        """Grid point i (the j-th chosen), refined between its grid neighbours."""
+        bracket = grid_bracket(freqs, i, cfg.frequency_hz)
+        return golden(f"refine{j}", start_phase, float(freqs[i]), first[i], bracket,
+                      cfg.scan_refine)  # fmt: skip
+
+    def refine_at(
+        key: str, phase: float, f: float, at_f: tuple[FloatArray, float], cells: int
+    ) -> tuple[float, FloatArray, float]:
+        """``f`` refined at ``phase`` within ``cells`` grid cells either side (inside the
+        searched range)."""
+        ratio = (cfg.frequency_hz[1] / cfg.frequency_hz[0]) ** (cells / cfg.scan_points)
+        bracket = (max(f / ratio, cfg.frequency_hz[0]), min(f * ratio, cfg.frequency_hz[1]))
+        return golden(key, phase, f, at_f, bracket, cfg.scan_phase_refine)
 
     refined = [refine(j, i) for j, i in enumerate(chosen)]
     candidates = [(f"verified{j}", start_phase, *r) for j, r in enumerate(refined)]
@@ -303,7 +326,10 @@ def run_scan(
                 scan_point(f"phase{tag}{m}", phase, f_t)
             second = [predict(f"phase{tag}{m}") for m in range(len(phases))]
             m = int(np.argmax([p for _, p in second]))
-            candidates.append((f"verified_phase{tag.rstrip('_')}", phases[m], f_t, *second[m]))
+            best = (f_t, *second[m])
+            if cfg.scan_phase_refine:
+                best = refine_at(f"rephase{t}", phases[m], f_t, second[m], 2)
+            candidates.append((f"verified_phase{tag.rstrip('_')}", phases[m], *best))
     limits = np.asarray(target.torque_limits_nm, dtype=np.float64)
     for key, phase, f, weights, predicted in candidates:
         if key in study.user_attrs:
