@@ -60,15 +60,39 @@ DEFAULT_RATES: dict[str, Any] = {
 BANDWIDTHS = ("omega", "omega_s")
 #: What the tuner (``train.studies.tune``) searches: rate → (low, high, log scale); the rest (the
 #: inertia floor, the re-synchronisation, the remedy) stays the robot's.
+#: The joint damping ratio ζ is searched on a log scale from 0.02 (about the damping the
+#: hold's damper alone leaves, ``docs/worst_case.md#spring-modes``) to 2 (overdamped).
 TUNABLE = {
     "omega": (3.0, 100.0, True),
     "omega_s": (3.0, 100.0, True),
     "rho": (2.0, 40.0, True),
     "lam": (0.5, 10.0, True),
+    "damping_ratio": (0.02, 2.0, True),
 }
 #: The paper's law exactly (the ``passivity_paper`` controller): no re-synchronisation of σ,
 #: no saturation-aware reference torque — whatever a robot's defaults or tuned rates say.
 PAPER_LAW = {"sync_rate": 0.0, "saturation_aware": False, "zoh_damping": 0.0, "damping_ratio": 0.0}
+#: What the tuner searches for the paper's law: :data:`TUNABLE` less the rates
+#: :data:`PAPER_LAW` fixes.
+PAPER_TUNABLE = {k: v for k, v in TUNABLE.items() if k not in PAPER_LAW}
+
+
+@dataclass(frozen=True)
+class PaperRates:
+    """The rate source of the paper's law (``agents.registry.RateSource``): the passivity
+    controller's profile key, default rates and bandwidths, and :data:`PAPER_TUNABLE` — the
+    tuner must not search a rate :data:`PAPER_LAW` fixes (it could not act)."""
+
+    NAME: str = NAME
+    DEFAULT_RATES: Mapping[str, Any] = dataclasses.field(default_factory=lambda: DEFAULT_RATES)
+    TUNABLE: Mapping[str, tuple[float, float, bool]] = dataclasses.field(
+        default_factory=lambda: PAPER_TUNABLE
+    )
+    BANDWIDTHS: tuple[str, ...] = BANDWIDTHS
+
+
+#: The paper's law's rate source (its registry entry's ``rates``).
+PAPER_RATES = PaperRates()
 
 _PUMPS = ("metric", "paper")
 #: The default and tuned gains run at most this fraction of their stated period limit

@@ -62,8 +62,9 @@ class ControllerEntry:
     Attributes:
         name: the name :func:`make_controller`, the configs and the residual ids use.
         build: its builder, ``build(ctx, gains=None)``.
-        rates: the module stating its gain rates (:class:`RateSource`); two entries may
-            share one (the paper's passivity law and the default one).
+        rates: the module stating its gain rates (:class:`RateSource`), or an object with
+            its constants: the paper's passivity law shares the default one's, less the
+            tuned rates its law fixes (``agents.passivity.PAPER_RATES``).
         prior_base: whether a residual on it may have a control prior: its residual
             feature block holds the reference error q_r(s) − q per joint
             (``agents.residual_features.PRIOR_ERROR_FEATURES``).
@@ -88,7 +89,7 @@ def _table(*entries: ControllerEntry) -> Mapping[str, ControllerEntry]:
 #: Every controller, name → entry: the one table.
 ENTRIES: Mapping[str, ControllerEntry] = _table(
     ControllerEntry("passivity", passivity.build, passivity),
-    ControllerEntry("passivity_paper", passivity.build_paper, passivity),
+    ControllerEntry("passivity_paper", passivity.build_paper, passivity.PAPER_RATES),
     ControllerEntry("computed_torque", computed_torque.build, computed_torque),
     ControllerEntry("pd_gravity", pd_gravity.build, pd_gravity),
     ControllerEntry("slotine_li", slotine_li.build, slotine_li),

@@ -3,9 +3,10 @@ view of that one."""
 
 from __future__ import annotations
 
+import gymnasium as gym
 import pytest
 
-from agents import registry
+from agents import passivity, registry
 from agents.base import Controller
 from agents.registry import (
     CONTROLLER_NAMES,
@@ -84,3 +85,24 @@ def test_an_entry_added_to_the_table_is_a_controller_everywhere(make_env, monkey
     twin = make_controller("pd_twin", env)
     assert isinstance(twin, Controller)
     assert twin.gains == make_controller("pd_gravity", env).gains
+
+
+@pytest.mark.parametrize("name", sorted(TUNABLE))
+def test_every_corner_of_a_tuning_box_builds_the_controller(name: str) -> None:
+    """The tuner may hand a controller any point of its box: the lowest and the highest
+    corner both build (a rate the law fixes — the paper's law's damping ratio — would be
+    refused here)."""
+    env = gym.make(TWO_LINK)
+    try:
+        for side in (0, 1):
+            rates = {rate: box[side] for rate, box in TUNABLE[name].items()}
+            ctrl = make_controller(name, env, rates)
+            assert ctrl is not None
+    finally:
+        env.close()
+
+
+def test_the_paper_law_tunes_no_rate_it_fixes() -> None:
+    assert "damping_ratio" in TUNABLE["passivity"]
+    assert not set(TUNABLE["passivity_paper"]) & set(passivity.PAPER_LAW)
+    assert set(TUNABLE["passivity_paper"]) == set(TUNABLE["passivity"]) - set(passivity.PAPER_LAW)

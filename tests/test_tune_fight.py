@@ -107,8 +107,9 @@ def test_trials_scale_with_the_number_of_tuned_rates(tmp_path):
     cfg = TuneConfig(controllers=["computed_torque", "passivity"])
     assert cfg.trials_per_rate == 25 and cfg.study_seeds == [0, 1, 2]
     assert cfg.study_trials("computed_torque") == 50  # max(40, 25 x 2)
-    assert cfg.study_trials("passivity") == 100  # max(40, 25 x 4)
-    assert TuneConfig(trials=120).study_trials("passivity") == 120  # the floor decides
+    assert cfg.study_trials("passivity") == 125  # max(40, 25 x 5): ζ is tuned too
+    assert cfg.study_trials("passivity_paper") == 100  # max(40, 25 x 4): the paper fixes ζ
+    assert TuneConfig(trials=140).study_trials("passivity") == 140  # the floor decides
     assert TuneConfig(trials=1, trials_per_rate=1).study_trials("adaptive_slotine_li") == 3
 
 

@@ -38,7 +38,7 @@ POSITION_ROUNDING = 1e-12
 WIDEN_FACTOR = 3.0
 #: The value each rate must stay strictly above (0: a bandwidth, a ratio, a gain is > 0);
 #: rates not named have the floor 0 too.
-RATE_FLOORS: Mapping[str, float] = {"zeta": 0.0, "kd_ratio": 0.0}
+RATE_FLOORS: Mapping[str, float] = {"zeta": 0.0, "kd_ratio": 0.0, "damping_ratio": 0.0}
 #: A low bound this close (relative) to its floor cannot be widened any further.
 FLOOR_TOLERANCE = 1e-6
 
