@@ -106,7 +106,11 @@ def test_a_missing_file_is_a_usage_error_and_a_failure_is_status_1(
     with pytest.raises(SystemExit) as exc:
         main(["replay", str(tmp_path), "--rate", "damping_ratio"])
     assert exc.value.code == 2
-    assert "NAME=VALUE" in capsys.readouterr().err
+    assert "--rate expects rate=value, got 'damping_ratio'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main(["replay", str(tmp_path), "--rate", "damping_ratio=[0.5"])
+    assert exc.value.code == 2
+    assert "--rate damping_ratio: not YAML" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
         main(["evaluate", "--config", str(tmp_path / "nope.yml")])
     assert exc.value.code == 2

@@ -47,7 +47,9 @@ from ptrack_gym.errors import PtrackError  # noqa: E402
 from train.common.arguments import (  # noqa: E402
     add_config_arguments,
     config_from_args,
+    split_assignment,
     to_argv,
+    yaml_value,
 )
 
 Runner = Callable[[argparse.Namespace, argparse.ArgumentParser], int]
@@ -224,8 +226,6 @@ def _replay_parser(p: argparse.ArgumentParser) -> None:
 
 
 def _replay(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
-    import yaml
-
     from agents.registry import CONTROLLERS
     from ptrack_gym.errors import InvalidConfigError
     from train.studies.adversary import replay_all
@@ -240,13 +240,8 @@ def _replay(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
         )
     rates = {}
     for item in args.rate:
-        name, sep, raw = item.partition("=")
-        if not (sep and name):
-            raise InvalidConfigError(f"--rate {item!r}: give NAME=VALUE")
-        try:
-            rates[name] = yaml.safe_load(raw)
-        except yaml.YAMLError as exc:
-            raise InvalidConfigError(f"--rate {name}: not YAML: {raw!r} ({exc})") from None
+        name, raw = split_assignment(item, "--rate", what="rate")
+        rates[name] = yaml_value(raw, "--rate", name)
     for line in replay_all(worst, args.under, rates):
         print(line)
     return 0

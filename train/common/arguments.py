@@ -213,13 +213,36 @@ def _coerce(name: str, tp: Any, value: Any, where: str, text: bool) -> Any:
     return value
 
 
+def split_assignment(item: str, flag: str, what: str = "field") -> tuple[str, str]:
+    """``(name, raw)`` of a command-line ``name=raw`` given to option ``flag`` (``--set``,
+    ``--rate``), the name stripped.
+
+    Raises:
+        InvalidConfigError: no ``=`` or no name ("``flag`` expects ``what``=value").
+    """
+    key, sep, raw = item.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise InvalidConfigError(f"{flag} expects {what}=value, got {item!r}")
+    return key, raw
+
+
+def yaml_value(raw: str, flag: str, name: str) -> Any:
+    """``raw`` read as YAML (``--set name=raw``, ``--rate name=raw``).
+
+    Raises:
+        InvalidConfigError: not YAML, naming ``flag`` and ``name``.
+    """
+    try:
+        return yaml.safe_load(raw)
+    except yaml.YAMLError as exc:
+        raise InvalidConfigError(f"{flag} {name}: not YAML: {raw!r} ({exc})") from None
+
+
 def _set_value(name: str, tp: Any, raw: str) -> Any:
     """The value of ``--set name=raw``: YAML, except that a str field keeps the raw text
     of a number, bool or date (``--set out=2024`` is the folder "2024")."""
-    try:
-        value = yaml.safe_load(raw)
-    except yaml.YAMLError as exc:
-        raise InvalidConfigError(f"--set {name}: not YAML: {raw!r} ({exc})") from None
+    value = yaml_value(raw, "--set", name)
     base = _split_optional(tp)[1]
     if base is str and value is not None and not isinstance(value, str):
         value = raw.strip()
@@ -327,10 +350,7 @@ def config_from_args(
             raise _unknown(set(loaded) - set(names), names, f"in {path}")
         data.update({k: _coerce(k, hints[k], v, str(path), text=False) for k, v in loaded.items()})
     for item in getattr(args, "set", None) or []:
-        key, sep, raw = item.partition("=")
-        key = key.strip()
-        if not sep or not key:
-            raise InvalidConfigError(f"--set expects field=value, got {item!r}")
+        key, raw = split_assignment(item, "--set")
         if key not in hints:
             raise _unknown([key], names, "in --set")
         data[key] = _set_value(key, hints[key], raw)
