@@ -118,6 +118,65 @@ def test_path_outcomes_are_the_rival_test_on_each_paths_pairs_alone():
     assert out.loc[(2, "time_err_rms"), "ratio_median"] == pytest.approx(2.0)
 
 
+def test_a_resume_at_changed_gains_is_refused_or_reruns_exactly_those_rows(tmp_path, monkeypatch):
+    """``config.yml`` records every controller's rates; a resume after one controller was
+    tuned again is refused naming it, and with ``rerun_changed`` runs exactly its rows again
+    (at the new gains) and keeps every other row."""
+    import shutil
+
+    import yaml
+
+    import agents.registry as registry
+
+    tuned = tmp_path / "tuned"
+    tuned.mkdir()
+    controllers = ["passivity", "computed_torque", "pd_gravity"]
+    for c in controllers:
+        shutil.copy(registry.TUNED_DIR / f"two_link-{c}.yml", tuned)
+    monkeypatch.setattr(registry, "TUNED_DIR", tuned)
+    monkeypatch.setattr(vs, "TUNED_DIR", tuned)
+    cfg = tiny(tmp_path / "v", gains="tuned", disturbances=["none"], seeds=2)
+    out = run_verdict(cfg, progress=False)
+    before = load_frame(out / "episodes.csv")
+    omega = yaml.safe_load((tuned / "two_link-passivity.yml").read_text())["rates"]["omega"]
+    saved = yaml.safe_load((out / "config.yml").read_text())
+    assert saved[vs.RATES_KEY]["two_link"]["passivity"]["omega"] == omega
+    run_verdict(cfg, resume=True, progress=False)  # same gains: resumes, nothing to run
+
+    record = yaml.safe_load((tuned / "two_link-passivity.yml").read_text())
+    record["rates"]["omega"] = 0.5 * omega  # passivity tuned again
+    (tuned / "two_link-passivity.yml").write_text(yaml.safe_dump(record))
+    with pytest.raises(InvalidConfigError, match="gains of passivity on two_link changed"):
+        run_verdict(cfg, resume=True, progress=False)
+    pd.testing.assert_frame_equal(load_frame(out / "episodes.csv"), before)  # nothing lost
+
+    calls = []
+    real_run = vs.run_one
+
+    def counting(*args):
+        calls.append(args[3].controller)
+        return real_run(*args)
+
+    monkeypatch.setattr(vs, "run_one", counting)
+    run_verdict(cfg, resume=True, progress=False, rerun_changed=True)
+    assert calls == ["passivity"] * 4  # 2 paths x 2 seeds; the others' rows kept
+    after = load_frame(out / "episodes.csv")
+    key = ["controller", "path", "seed"]
+    old = before.set_index(key).sort_index()["path_dist_rms"]
+    new = after.set_index(key).sort_index()["path_dist_rms"]
+    assert len(after) == len(before)
+    others = old.index.get_level_values(0) != "passivity"
+    pd.testing.assert_series_equal(new[others], old[others])
+    assert (new[~others] != old[~others]).all()  # ran again, at the new ω
+    saved = yaml.safe_load((out / "config.yml").read_text())
+    assert saved[vs.RATES_KEY]["two_link"]["passivity"]["omega"] == 0.5 * omega
+
+    del saved[vs.RATES_KEY]  # a run written before the record: cannot be checked
+    (out / "config.yml").write_text(yaml.safe_dump(saved))
+    with pytest.raises(InvalidConfigError, match="records no rates"):
+        run_verdict(cfg, resume=True, progress=False)
+
+
 def test_an_existing_study_is_refused_without_resume_or_force(tmp_path):
     cfg = tiny(tmp_path / "v", test_paths=[1], seeds=1, disturbances=["none"])
     run_verdict(cfg, progress=False)

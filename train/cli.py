@@ -80,12 +80,15 @@ def _config(cls: type, args: argparse.Namespace, command: str) -> Any:
 # -- evaluate ------------------------------------------------------------------------------
 # -- the commands of one config dataclass ----------------------------------------------------
 def _config_command(
-    where: str, what: str, run: Callable[[Any, argparse.Namespace], Path | None]
+    where: str,
+    what: str,
+    run: Callable[[Any, argparse.Namespace], Path | None],
+    extra: Callable[[argparse.ArgumentParser], None] | None = None,
 ) -> tuple[Callable[[argparse.ArgumentParser], None], Runner]:
     """The parser builder and runner of a command whose config is the dataclass ``where``
     (``"module:Class"``): its generated arguments, ``--resume``/``--force`` (of ``what``),
-    ``--no-progress``; the runner states the config, then ``run(config, args)`` — a file it
-    returns is printed."""
+    ``--no-progress`` and what ``extra`` adds; the runner states the config, then
+    ``run(config, args)`` — a file it returns is printed."""
     module, _, name = where.partition(":")
 
     def config_class() -> type:
@@ -95,6 +98,8 @@ def _config_command(
         add_config_arguments(p, config_class())
         _resume(p, what)
         _progress(p)
+        if extra is not None:
+            extra(p)
 
     def runner(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
         cfg = _config(config_class(), args, p.prog.removeprefix("ptrack "))
@@ -133,7 +138,19 @@ def _run_adversary(cfg: Any, a: argparse.Namespace) -> None:
 def _run_verdict(cfg: Any, a: argparse.Namespace) -> Path:
     from train.studies.verdict_study import run_verdict
 
-    return run_verdict(cfg, a.resume, not a.no_progress, force=a.force) / "verdict.md"
+    return (
+        run_verdict(cfg, a.resume, not a.no_progress, force=a.force, rerun_changed=a.rerun_changed)
+        / "verdict.md"
+    )
+
+
+def _verdict_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--rerun-changed",
+        action="store_true",
+        help="with --resume: drop the rows of controllers whose gains changed since they ran "
+        "(tuned again, other defaults) and run them again; without it such a resume is refused",
+    )
 
 
 def _run_rates(cfg: Any, a: argparse.Namespace) -> None:
@@ -396,7 +413,9 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Runner
     ),
     "verdict": (
         "the verdict across robots and random test paths",
-        *_config_command("train.studies.verdict_study:VerdictConfig", "study", _run_verdict),
+        *_config_command(
+            "train.studies.verdict_study:VerdictConfig", "study", _run_verdict, _verdict_flags
+        ),
     ),
     "report": ("rewrite and print results folders' reports", _report_parser, _report),
     "probe-actions": (
