@@ -147,6 +147,37 @@ def test_resume_completes_without_duplicates(full_run, tmp_path) -> None:
     pd.testing.assert_frame_equal(numbers(out / "episodes.csv"), numbers(full_run / "episodes.csv"))
 
 
+def test_a_resume_at_changed_gains_is_refused_or_reruns_exactly_those_rows(
+    full_run, tmp_path
+) -> None:
+    """The sweep records each controller's rates; a resume at other gains for one of them
+    is refused naming it, and ``rerun_changed`` runs exactly its rows again."""
+    import yaml
+
+    from train.evaluation.rate_record import RATES_KEY
+
+    out = tmp_path / "retuned"
+    shutil.copytree(full_run, out)
+    saved = yaml.safe_load((out / "config.yml").read_text())
+    table = saved[RATES_KEY]["two_link"]
+    assert set(table) == {"computed_torque", "passivity"}
+    victim = "computed_torque"
+    table[victim] = {**table[victim], "omega": 2.0 * table[victim]["omega"]}  # ran at others
+    (out / "config.yml").write_text(yaml.safe_dump(saved, sort_keys=False))
+    before = (out / "episodes.csv").read_text()
+    with pytest.raises(InvalidConfigError, match=f"gains of {victim} on two_link changed"):
+        run_sweep(tiny(tmp_path, "retuned", "workers=1"), resume=True, progress=False)
+    assert (out / "episodes.csv").read_text() == before  # nothing lost
+    run_sweep(
+        tiny(tmp_path, "retuned", "workers=1"), resume=True, progress=False, rerun_changed=True
+    )
+    rows = read_episodes(out / "episodes.csv")
+    assert len(rows) == 8 and [r["controller"] for r in rows[-4:]] == [victim] * 4
+    pd.testing.assert_frame_equal(numbers(out / "episodes.csv"), numbers(full_run / "episodes.csv"))
+    saved = yaml.safe_load((out / "config.yml").read_text())
+    assert saved[RATES_KEY] == yaml.safe_load((full_run / "config.yml").read_text())[RATES_KEY]
+
+
 # An earlier test may leave an idle thread in this process (tqdm's monitor, after a CLI run
 # with a progress bar); these tests force a fork all the same, which Python >= 3.12 warns
 # about. "auto" would spawn here (tested below).

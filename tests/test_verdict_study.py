@@ -134,7 +134,7 @@ def test_a_resume_at_changed_gains_is_refused_or_reruns_exactly_those_rows(tmp_p
     for c in controllers:
         shutil.copy(registry.TUNED_DIR / f"two_link-{c}.yml", tuned)
     monkeypatch.setattr(registry, "TUNED_DIR", tuned)
-    monkeypatch.setattr(vs, "TUNED_DIR", tuned)
+    monkeypatch.setattr(vs, "TUNED_DIR", tuned)  # where it reads the validation paths
     cfg = tiny(tmp_path / "v", gains="tuned", disturbances=["none"], seeds=2)
     out = run_verdict(cfg, progress=False)
     before = load_frame(out / "episodes.csv")

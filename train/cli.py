@@ -114,7 +114,10 @@ def _config_command(
 def _run_evaluate(cfg: Any, a: argparse.Namespace) -> None:
     from train.evaluation.sweep import run_sweep
 
-    run_sweep(cfg, resume=a.resume, progress=not a.no_progress, force=a.force)
+    run_sweep(
+        cfg, resume=a.resume, progress=not a.no_progress, force=a.force,
+        rerun_changed=a.rerun_changed,
+    )  # fmt: skip
 
 
 def _run_study(cfg: Any, a: argparse.Namespace) -> Path:
@@ -144,7 +147,7 @@ def _run_verdict(cfg: Any, a: argparse.Namespace) -> Path:
     )
 
 
-def _verdict_flags(p: argparse.ArgumentParser) -> None:
+def _rerun_flag(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--rerun-changed",
         action="store_true",
@@ -321,9 +324,11 @@ def _report(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
             print(f"{folder / 'report.md'}: where each controller holds{table[-1]}")
         else:
             from train.evaluation.config import EvalConfig
+            from train.evaluation.rate_record import RATES_KEY
             from train.evaluation.sweep import finish
 
-            cfg = EvalConfig(**{**saved, "out": str(folder), "video": False})
+            fields = {k: v for k, v in saved.items() if k != RATES_KEY}
+            cfg = EvalConfig(**{**fields, "out": str(folder), "video": False})
             if not args.no_rewrite:
                 finish(cfg, folder, show=False)
             print(f"{folder / 'report.md'}:\n")
@@ -389,7 +394,7 @@ def _delegate(module: str) -> tuple[Callable[[argparse.ArgumentParser], None], R
 COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Runner]] = {
     "evaluate": (
         "paired evaluation sweep",
-        *_config_command("train.evaluation.config:EvalConfig", "sweep", _run_evaluate),
+        *_config_command("train.evaluation.config:EvalConfig", "sweep", _run_evaluate, _rerun_flag),
     ),
     "train": ("train one RL policy (SB3)", _train_parser, _train),
     "campaign": ("train the runs of a campaign file", *_delegate("train.rl.campaign")),
@@ -414,7 +419,7 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Runner
     "verdict": (
         "the verdict across robots and random test paths",
         *_config_command(
-            "train.studies.verdict_study:VerdictConfig", "study", _run_verdict, _verdict_flags
+            "train.studies.verdict_study:VerdictConfig", "study", _run_verdict, _rerun_flag
         ),
     ),
     "report": ("rewrite and print results folders' reports", _report_parser, _report),

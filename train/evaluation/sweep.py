@@ -27,10 +27,20 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from ptrack_gym.robots import profile_for_env_id
 from train.common.runs import open_run, worker_count, worker_pool
 from train.evaluation.config import EvalConfig
-from train.evaluation.episode import SB3_PREFIX, EpisodeSettings, Task, label, run_episode
+from train.evaluation.episode import (
+    KEY_COLUMNS,
+    SB3_PREFIX,
+    EpisodeSettings,
+    Task,
+    label,
+    run_episode,
+)
+from train.evaluation.rate_record import RATES_KEY, check_resume, rate_record
 from train.evaluation.results import (
+    COLUMNS,
     EpisodeWriter,
     done_keys,
     format_table,
@@ -118,15 +128,24 @@ def run_sweep(
     progress: bool = True,
     show: bool = True,
     force: bool = False,
+    rerun_changed: bool = False,
 ) -> Path:
     """Run (or resume) the sweep of ``cfg``; return the output folder. ``show`` prints
     the headline table; ``force`` starts over in a folder that holds files
-    (:func:`train.common.runs.open_run`)."""
+    (:func:`train.common.runs.open_run`). ``config.yml`` records the rates every
+    model-based controller ran with (:mod:`train.evaluation.rate_record`): a resume after
+    they changed is refused, or with ``rerun_changed`` reruns exactly those controllers'
+    rows."""
     for line in cfg.base_gain_mismatches():
         print(f"warning: {line}", file=sys.stderr, flush=True)
+    robot = profile_for_env_id(cfg.env_id).name
+    record = rate_record([robot], cfg.controllers, cfg.gains)
+    if resume:
+        check_resume(Path(cfg.out), "episodes.csv", record, rerun_changed, COLUMNS,
+                     KEY_COLUMNS, lambda row: (robot, row["controller"]))  # fmt: skip
     run = open_run(
-        cfg.out, "episodes.csv", dataclasses.asdict(cfg), resume=resume, force=force,
-        free=RUN_ONLY_FIELDS,
+        cfg.out, "episodes.csv", {**dataclasses.asdict(cfg), RATES_KEY: record},
+        resume=resume, force=force, free=(*RUN_ONLY_FIELDS, RATES_KEY),
     )  # fmt: skip
     out, episodes = run.out, run.results
     finished = done_keys(read_episodes(episodes))  # validates the file before anything runs

@@ -34,9 +34,7 @@ Episodes run in ``workers`` processes (0: the cores).
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import io
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -46,18 +44,19 @@ from typing import Any
 import pandas as pd
 import yaml
 
-from agents.registry import GAIN_CHOICES, TUNED_DIR, effective_rates, tuned_rates
+from agents.registry import GAIN_CHOICES, TUNED_DIR, tuned_rates
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.metrics import METRIC_NAMES
 from ptrack_gym.robots import ROBOTS
 from train.common import arguments
 from train.common.checks import check_counts, check_known, check_lists, check_path_seeds
 from train.common.paired_tests import TooFewPairsError
-from train.common.runs import open_run, write_atomic
+from train.common.runs import open_run
 from train.common.statistics import hierarchical_bootstrap
 from train.evaluation.config import require_extra
 from train.evaluation.envs import check_env_kwargs, env_kwargs
 from train.evaluation.episode import EpisodeSettings, Task, run_episode
+from train.evaluation.rate_record import RATES_KEY, check_resume, rate_record
 from train.evaluation.results import read_episodes
 from train.evaluation.verdict import (
     BOTH_METRICS,
@@ -236,66 +235,6 @@ def run_one(cfg: VerdictConfig, robot: str, path_seed: int, task: Task) -> dict[
     return {**row, "robot": robot, "path": str(path_seed)}
 
 
-#: The key of ``config.yml`` that records the rates every controller ran with.
-RATES_KEY = "rates"
-
-
-def rate_record(cfg: VerdictConfig) -> dict[str, dict[str, dict[str, Any]]]:
-    """robot → controller → every rate it runs with at ``cfg.gains``
-    (:func:`agents.registry.effective_rates`: the defaults, the robot's, the tuned file's):
-    what the rows of that pair ran at, written into ``config.yml``."""
-    return {
-        robot: {c: dict(effective_rates(ROBOTS[robot], c, cfg.gains)) for c in cfg.controllers}
-        for robot in cfg.robots
-    }
-
-
-def changed_rates(
-    saved: dict[str, Any], now: dict[str, dict[str, dict[str, Any]]]
-) -> list[tuple[str, str]]:
-    """(robot, controller) of every pair whose rates in ``now`` differ from the ``saved``
-    record (a pair the record lacks counts as changed)."""
-    return [
-        (robot, c)
-        for robot, table in now.items()
-        for c, rates in table.items()
-        if (saved.get(robot) or {}).get(c) != rates
-    ]
-
-
-def _check_rates(out: Path, now: dict[str, dict[str, dict[str, Any]]], rerun_changed: bool) -> None:
-    """On resume: refuse rows run at other gains than today's, or (``rerun_changed``) drop
-    them from ``episodes.csv`` so that they run again."""
-    episodes, saved_file = out / "episodes.csv", out / "config.yml"
-    if not (episodes.exists() and saved_file.exists()):
-        return
-    saved = yaml.safe_load(saved_file.read_text()) or {}
-    if RATES_KEY not in saved:
-        raise InvalidConfigError(
-            f"{saved_file} records no rates (a run written before they were recorded): its "
-            "rows cannot be checked against today's gains; add the record of the gains they "
-            "ran at, or start over with --force"
-        )
-    changed = changed_rates(saved[RATES_KEY], now)
-    if not changed:
-        return
-    named = ", ".join(f"{c} on {r}" for r, c in changed)
-    if not rerun_changed:
-        raise InvalidConfigError(
-            f"the gains of {named} changed since {out} ran them (agents/tuned or the "
-            "defaults): --rerun-changed drops those rows and runs them again"
-        )
-    rows = read_episodes(episodes, COLUMNS, KEY_COLUMNS)
-    drop = set(changed)
-    kept = [r for r in rows if (r["robot"], r["controller"]) not in drop]
-    text = io.StringIO()
-    writer = csv.DictWriter(text, fieldnames=COLUMNS, lineterminator="\n")
-    writer.writeheader()
-    writer.writerows(kept)
-    write_atomic(episodes, text.getvalue())
-    print(f"--rerun-changed: dropped {len(rows) - len(kept)} rows of {named}", flush=True)
-
-
 def run_verdict(
     cfg: VerdictConfig,
     resume: bool = False,
@@ -310,9 +249,10 @@ def run_verdict(
     naming the pairs; with ``rerun_changed`` their rows are dropped and run again.
     """
     cfg.validate()
-    record = rate_record(cfg)
+    record = rate_record(cfg.robots, cfg.controllers, cfg.gains)
     if resume:
-        _check_rates(Path(cfg.out), record, rerun_changed)
+        check_resume(Path(cfg.out), "episodes.csv", record, rerun_changed, COLUMNS,
+                     KEY_COLUMNS, lambda row: (row["robot"], row["controller"]))  # fmt: skip
     settings = {
         **{
             k: v

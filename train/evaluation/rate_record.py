@@ -1,0 +1,100 @@
+"""The gains a study's rows ran at, recorded in its ``config.yml``, and what a resume does
+when they have changed since (a controller tuned again, other defaults).
+
+A record is robot → controller → every rate the controller runs with there
+(:func:`agents.registry.effective_rates`: the generic defaults, the robot's, the tuned
+file's or the given ones). :func:`check_resume` compares a saved record with today's: a
+changed pair is refused by name, or — ``rerun_changed`` — its rows are dropped from the
+results file so that the resume runs them again, every other row kept. Learned entrants
+(``sb3:<run folder>``) have no rates here; their runs pin their own base gains.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from agents.registry import CONTROLLER_NAMES, effective_rates
+from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.robots import ROBOTS
+from train.common.runs import CONFIG_FILE, write_atomic
+from train.evaluation.results import read_episodes
+
+#: The key of ``config.yml`` that holds the record.
+RATES_KEY = "rates"
+#: robot → controller → rate → value.
+Record = dict[str, dict[str, dict[str, Any]]]
+
+
+def rate_record(robots: Iterable[str], controllers: Iterable[str], gains: Any) -> Record:
+    """robot → controller → its rates at ``gains`` ("default", "tuned" or a mapping), for
+    every registry controller of ``controllers`` (learned entrants skipped)."""
+    names = [c for c in controllers if c in CONTROLLER_NAMES]
+    return {
+        robot: {c: dict(effective_rates(ROBOTS[robot], c, gains)) for c in names}
+        for robot in robots
+    }
+
+
+def changed_pairs(saved: Mapping[str, Any], now: Record) -> list[tuple[str, str]]:
+    """(robot, controller) of every pair of ``now`` whose rates differ from the ``saved``
+    record (a pair the record lacks counts as changed)."""
+    return [
+        (robot, c)
+        for robot, table in now.items()
+        for c, rates in table.items()
+        if (saved.get(robot) or {}).get(c) != rates
+    ]
+
+
+def check_resume(
+    out: Path,
+    results: str,
+    now: Record,
+    rerun_changed: bool,
+    columns: Sequence[str],
+    key_columns: Sequence[str],
+    pair_of: Callable[[Mapping[str, str]], tuple[str, str]],
+) -> None:
+    """Before a resume of the run in ``out``: nothing to do without results or where the
+    saved record equals ``now``; else refuse, naming the changed pairs, or with
+    ``rerun_changed`` rewrite ``out/results`` without their rows (``pair_of(row)`` is a
+    row's (robot, controller)).
+
+    Raises:
+        InvalidConfigError: a changed pair without ``rerun_changed``, or a saved
+            ``config.yml`` that records no rates (its rows cannot be checked).
+    """
+    episodes, saved_file = out / results, out / CONFIG_FILE
+    if not (episodes.exists() and saved_file.exists()):
+        return
+    saved = yaml.safe_load(saved_file.read_text()) or {}
+    if RATES_KEY not in saved:
+        raise InvalidConfigError(
+            f"{saved_file} records no rates (a run written before they were recorded): its "
+            "rows cannot be checked against today's gains; add the record of the gains they "
+            "ran at, or start over with --force"
+        )
+    changed = changed_pairs(saved[RATES_KEY], now)
+    if not changed:
+        return
+    named = ", ".join(f"{c} on {r}" for r, c in changed)
+    if not rerun_changed:
+        raise InvalidConfigError(
+            f"the gains of {named} changed since {out} ran them (agents/tuned or the "
+            "defaults): --rerun-changed drops those rows and runs them again"
+        )
+    rows = read_episodes(episodes, columns, key_columns)
+    drop = set(changed)
+    kept = [r for r in rows if pair_of(r) not in drop]
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=list(columns), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(kept)
+    write_atomic(episodes, text.getvalue())
+    print(f"--rerun-changed: dropped {len(rows) - len(kept)} rows of {named}", flush=True)
