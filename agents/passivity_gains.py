@@ -80,8 +80,9 @@ PAPER_TUNABLE = {k: v for k, v in TUNABLE.items() if k not in PAPER_LAW}
 @dataclass(frozen=True)
 class PaperRates:
     """The rate source of the paper's law (``agents.registry.RateSource``): the passivity
-    controller's profile key, default rates and bandwidths, and :data:`PAPER_TUNABLE` — the
-    tuner must not search a rate :data:`PAPER_LAW` fixes (it could not act)."""
+    controller's profile key, default rates and bandwidths, :data:`PAPER_TUNABLE` — the
+    tuner must not search a rate :data:`PAPER_LAW` fixes (it could not act) — and those
+    fixed rates (``FIXED``)."""
 
     NAME: str = NAME
     DEFAULT_RATES: Mapping[str, Any] = dataclasses.field(default_factory=lambda: DEFAULT_RATES)
@@ -89,6 +90,9 @@ class PaperRates:
         default_factory=lambda: PAPER_TUNABLE
     )
     BANDWIDTHS: tuple[str, ...] = BANDWIDTHS
+    #: Rates the law fixes whatever the defaults, the robot's or the tuned ones say
+    #: (``agents.registry.effective_rates`` applies them last).
+    FIXED: Mapping[str, Any] = dataclasses.field(default_factory=lambda: PAPER_LAW)
 
 
 #: The paper's law's rate source (its registry entry's ``rates``).

@@ -173,7 +173,8 @@ def effective_rates(
 ) -> dict[str, Any]:
     """Every rate ``name`` uses on the robot of ``profile`` with ``gains`` ("default",
     "tuned" or a mapping of rates): its generic defaults, updated by the profile's, updated
-    by the tuned or given ones — what :func:`make_controller` makes absolute.
+    by the tuned or given ones, then by the rates its law fixes (a rate source's optional
+    ``FIXED``: the paper's passivity law) — what :func:`make_controller` makes absolute.
 
     Raises:
         InvalidConfigError: an unknown controller or gain choice, or no tuned gains.
@@ -185,6 +186,7 @@ def effective_rates(
             rates.update(tuned_rates(profile.name, name))
     elif isinstance(gains, Mapping):
         rates.update(gains)
+    rates.update(getattr(source, "FIXED", {}))
     return rates
 
 

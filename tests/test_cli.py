@@ -112,6 +112,10 @@ def test_a_missing_file_is_a_usage_error_and_a_failure_is_status_1(
     assert exc.value.code == 2
     assert "--rate damping_ratio: not YAML" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
+        main(["verdict", "--set", "seeds=1", "--out", str(tmp_path / "v"), "--rerun-changed"])
+    assert exc.value.code == 2
+    assert "--rerun-changed acts on a resume" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
         main(["evaluate", "--config", str(tmp_path / "nope.yml")])
     assert exc.value.code == 2
     assert "nope.yml" in capsys.readouterr().err

@@ -168,6 +168,13 @@ def test_a_resume_at_changed_gains_is_refused_or_reruns_exactly_those_rows(
     with pytest.raises(InvalidConfigError, match=f"gains of {victim} on two_link changed"):
         run_sweep(tiny(tmp_path, "retuned", "workers=1"), resume=True, progress=False)
     assert (out / "episodes.csv").read_text() == before  # nothing lost
+    # another setting changed as well: refused on that setting before any row is dropped
+    with pytest.raises(InvalidConfigError, match="different settings: seeds 2 -> 3"):
+        run_sweep(tiny(tmp_path, "retuned", "workers=1", "seeds=3"), resume=True,
+                  progress=False, rerun_changed=True)  # fmt: skip
+    assert (out / "episodes.csv").read_text() == before
+    with pytest.raises(InvalidConfigError, match="--rerun-changed acts on a resume"):
+        run_sweep(tiny(tmp_path, "retuned", "workers=1"), progress=False, rerun_changed=True)
     run_sweep(
         tiny(tmp_path, "retuned", "workers=1"), resume=True, progress=False, rerun_changed=True
     )

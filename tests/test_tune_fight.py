@@ -468,73 +468,20 @@ def test_the_table_shows_seeds_spread_bounds_and_the_ranking_stability(tmp_path)
     assert "omega (high, not widened" in table
     assert "| two_link | slotine_li |" in table and "| 0 | – |" in table
     assert "two_link: ranking stability across study seeds [0, 1, 2] (2 controllers)" in table
-    md = (tmp_path / "study" / "fight.md").read_text()
-    assert "Kendall's tau" in md and "seed 0:" in md
-    assert md == fight_markdown(results, md.splitlines()[0].removeprefix("# "))
 
 
-def test_the_feedforward_of_a_diverged_phase_is_nan_not_a_warning() -> None:
-    """A controller whose phase ran to ±inf or NaN (a diverged episode) gets NaN feed-forward
-    rows there, and finite ones where its phase was finite — no numpy warning."""
-    import warnings
+def test_the_table_reads_the_shipped_tuned_gains_and_marks_rates_tuned_before_they_were(
+    tmp_path,
+):
+    """``ptrack tune --table`` on ``agents/tuned``; a file that predates a tunable rate
+    (the passivity law's ``damping_ratio``) shows that rate's default, marked."""
+    from agents.registry import TUNED_DIR
 
-    import gymnasium as gym
-
-    from ptrack_gym.metrics import feedforward_torques
-
-    env = gym.make("ptrack_gym/TwoLinkTrack-v0")
-    u = env.unwrapped
-    s = np.array([0.1, np.inf, -np.inf, np.nan, 0.3])
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        tau = feedforward_torques(u.model, u.path, s)
-    assert np.isnan(tau[1:4]).all() and np.isfinite(tau[[0, 4]]).all()
-    q, qd, qdd = u.path.evaluate(0.3)
-    np.testing.assert_allclose(tau[4], u.model.inverse_dynamics(q, qd, qdd), rtol=1e-12)
-    env.close()
-
-
-def test_a_later_seed_starts_in_the_box_the_seed_before_it_ended_in(tmp_path):
-    # seed 0 widens ω twice (ω* = 300 past [3, 100]); seed 1 starts in [3, 900] and needs no
-    # widening; without carry_boxes it starts over in [3, 100] and widens again
-    bowl = Bowl(omega=300.0, zeta=1.0)
-    kw = dict(study_seeds=[0, 1], trials=25, startup_trials=8, widen_on_bound=True)
-    result = tune(fight(tmp_path / "carry", **kw), progress=False, objective=bowl)
-    seeds = result["computed_torque"]["seeds"]
-    assert seeds[0]["widenings"] == 2 and seeds[1]["widenings"] == 0
-    assert seeds[1]["box"]["omega"] == [3.0, 900.0, True]
-    studies = _journal_studies(tmp_path / "carry")
-    assert study_name("computed_torque", 1, 1) not in studies  # no rerun of seed 1
-    # a resume reads each seed's own box back, whatever the config's box says
-    again = tune(fight(tmp_path / "carry", **kw), resume=True, progress=False, objective=bowl)
-    assert again["computed_torque"]["seeds"][1] == seeds[1]
-    # more widenings later: seed 0 widens again, seed 1 keeps the box it started in
-    wider = Bowl(omega=2000.0, zeta=1.0)
-    more = tune(fight(tmp_path / "carry", **{**kw, "max_widenings": 3}), resume=True,
-                progress=False, objective=wider)["computed_torque"]  # fmt: skip
-    assert more["seeds"][1]["box"]["omega"] == [3.0, 900.0, True]
-    # a search box changed in the code since (not in config.yml) is refused on resume
-    from train.studies.tune_config import TuneConfig as Config
-
-    real = Config.box
-    with pytest.MonkeyPatch.context() as m:
-        m.setattr(Config, "box", lambda self, c: {**real(self, c), "omega": (5.0, 100.0, True)})
-        with pytest.raises(InvalidConfigError, match="searched"):
-            tune(fight(tmp_path / "carry", **kw), resume=True, progress=False, objective=bowl)
-    alone = tune(fight(tmp_path / "own", carry_boxes=False, **kw), progress=False, objective=bowl)
-    assert alone["computed_torque"]["seeds"][1]["widenings"] == 2
-
-
-def test_the_status_of_a_fight_lists_its_studies_best_and_bounds(tmp_path):
-    from train.studies.tune_fight import journal_status
-
-    assert "no journal yet" in journal_status(tmp_path / "none")
-    bowl = Bowl(omega=300.0, zeta=1.0)
-    tune(fight(tmp_path, study_seeds=[0], trials=25, startup_trials=8, widen_on_bound=True,
-               max_widenings=1), progress=False, objective=bowl)  # fmt: skip
-    text = journal_status(tmp_path)
-    rows = {line.split(" | ")[0].strip("| "): line for line in text.splitlines()[2:]}
-    assert set(rows) == {"computed_torque.seed0", "computed_torque.seed0.widen1"}
-    assert "| 25 |" in rows["computed_torque.seed0.widen1"]  # new trials, copies apart
-    assert "omega [3, 300]" in rows["computed_torque.seed0.widen1"]
-    assert rows["computed_torque.seed0.widen1"].endswith("| omega high |")  # ω* = 300: on it
+    table = tuned_table(TUNED_DIR)
+    for path in sorted(TUNED_DIR.glob("*.yml")):
+        robot, controller = path.stem.split("-", 1)
+        assert f"| {robot} | {controller} |" in table
+    data = yaml.safe_load((TUNED_DIR / "two_link-passivity.yml").read_text())
+    data["rates"].pop("damping_ratio", None)
+    (tmp_path / "two_link-passivity.yml").write_text(yaml.safe_dump(data))
+    assert "damping_ratio 0 (not tuned)" in tuned_table(tmp_path)

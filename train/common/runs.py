@@ -111,13 +111,7 @@ def open_run(
     existing = has_results(path)
     saved = out / CONFIG_FILE
     if existing:
-        if saved.exists():
-            old = {**(defaults or {}), **(yaml.safe_load(saved.read_text()) or {})}
-            _check_same(old, settings, free)
-        elif saved_required:
-            raise InvalidConfigError(
-                f"{saved} is missing: cannot check that --resume continues the same run"
-            )
+        check_saved_settings(out, results, settings, free, defaults, saved_required)
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(saved, yaml.safe_dump(dict(settings), sort_keys=False))
     write_atomic(out / COMMAND_FILE, shlex.join(getattr(sys, "orig_argv", sys.argv)) + "\n")
@@ -137,6 +131,33 @@ def write_atomic(path: Path, text: str) -> None:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def check_saved_settings(
+    out: Path,
+    results: str,
+    settings: Mapping[str, Any],
+    free: Collection[str] = (),
+    defaults: Mapping[str, Any] | None = None,
+    saved_required: bool = True,
+) -> None:
+    """What :func:`open_run` checks before a resume, without writing anything: where
+    ``out/results`` holds results, the saved ``config.yml`` must equal ``settings`` but for
+    ``free`` (``defaults``: values a setting had before the file recorded it).
+
+    Raises:
+        InvalidConfigError: as :func:`open_run` on resume.
+    """
+    if not has_results(Path(out) / results):
+        return
+    saved = Path(out) / CONFIG_FILE
+    if saved.exists():
+        old = {**(defaults or {}), **(yaml.safe_load(saved.read_text()) or {})}
+        _check_same(old, settings, free)
+    elif saved_required:
+        raise InvalidConfigError(
+            f"{saved} is missing: cannot check that --resume continues the same run"
+        )
 
 
 def _check_same(old: Mapping[str, Any], new: Mapping[str, Any], free: Collection[str]) -> None:

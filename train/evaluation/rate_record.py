@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +22,7 @@ import yaml
 from agents.registry import CONTROLLER_NAMES, effective_rates
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import ROBOTS
-from train.common.runs import CONFIG_FILE, write_atomic
+from train.common.runs import CONFIG_FILE, check_saved_settings, has_results, write_atomic
 from train.evaluation.results import read_episodes
 
 #: The key of ``config.yml`` that holds the record.
@@ -56,22 +56,28 @@ def check_resume(
     out: Path,
     results: str,
     now: Record,
+    *,
     rerun_changed: bool,
+    settings: Mapping[str, Any],
+    free: Collection[str],
     columns: Sequence[str],
     key_columns: Sequence[str],
     pair_of: Callable[[Mapping[str, str]], tuple[str, str]],
 ) -> None:
-    """Before a resume of the run in ``out``: nothing to do without results or where the
-    saved record equals ``now``; else refuse, naming the changed pairs, or with
-    ``rerun_changed`` rewrite ``out/results`` without their rows (``pair_of(row)`` is a
-    row's (robot, controller)).
+    """Before a resume of the run in ``out``: first the other ``settings`` (but ``free``)
+    must equal the saved ones (:func:`train.common.runs.check_saved_settings`: a resume
+    that is refused loses nothing); then nothing to do without results or where the saved
+    record equals ``now``; else refuse, naming the changed pairs, or with ``rerun_changed``
+    rewrite ``out/results`` without their rows (``pair_of(row)`` is a row's (robot,
+    controller)).
 
     Raises:
-        InvalidConfigError: a changed pair without ``rerun_changed``, or a saved
-            ``config.yml`` that records no rates (its rows cannot be checked).
+        InvalidConfigError: other settings, a changed pair without ``rerun_changed``, or a
+            saved ``config.yml`` that records no rates (its rows cannot be checked).
     """
+    check_saved_settings(out, results, settings, (*free, RATES_KEY))
     episodes, saved_file = out / results, out / CONFIG_FILE
-    if not (episodes.exists() and saved_file.exists()):
+    if not (has_results(episodes) and saved_file.exists()):
         return
     saved = yaml.safe_load(saved_file.read_text()) or {}
     if RATES_KEY not in saved:

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
 from train.common.runs import open_run, worker_count, worker_pool
 from train.evaluation.config import EvalConfig
@@ -140,12 +141,18 @@ def run_sweep(
         print(f"warning: {line}", file=sys.stderr, flush=True)
     robot = profile_for_env_id(cfg.env_id).name
     record = rate_record([robot], cfg.controllers, cfg.gains)
-    if resume:
-        check_resume(Path(cfg.out), "episodes.csv", record, rerun_changed, COLUMNS,
-                     KEY_COLUMNS, lambda row: (robot, row["controller"]))  # fmt: skip
+    settings = {**dataclasses.asdict(cfg), RATES_KEY: record}
+    if rerun_changed and not resume:
+        raise InvalidConfigError("--rerun-changed acts on a resume: add --resume")
+    if resume and not force:
+        check_resume(
+            Path(cfg.out), "episodes.csv", record, rerun_changed=rerun_changed,
+            settings=settings, free=RUN_ONLY_FIELDS, columns=COLUMNS, key_columns=KEY_COLUMNS,
+            pair_of=lambda row: (robot, row["controller"]),
+        )  # fmt: skip
     run = open_run(
-        cfg.out, "episodes.csv", {**dataclasses.asdict(cfg), RATES_KEY: record},
-        resume=resume, force=force, free=(*RUN_ONLY_FIELDS, RATES_KEY),
+        cfg.out, "episodes.csv", settings, resume=resume, force=force,
+        free=(*RUN_ONLY_FIELDS, RATES_KEY),
     )  # fmt: skip
     out, episodes = run.out, run.results
     finished = done_keys(read_episodes(episodes))  # validates the file before anything runs

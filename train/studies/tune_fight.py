@@ -166,7 +166,10 @@ def tuned_table(tuned_dir: Path = TUNED_DIR) -> str:
         study = data["study"]
         space = RATE_MODULES[controller].TUNABLE
         default = effective_rates(robot_profile(robot), controller)
-        tuned_text = ", ".join(f"{k} {data['rates'][k]:.3g}" for k in space)
+        tuned = {**default, **data["rates"]}  # a rate tuned before it was tunable: its default
+        tuned_text = ", ".join(
+            f"{k} {tuned[k]:.3g}" + ("" if k in data["rates"] else " (not tuned)") for k in space
+        )
         default_text = ", ".join(f"{k} {default[k]:.3g}" for k in space)
         seeds = study.get("seeds")
         if seeds:

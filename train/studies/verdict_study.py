@@ -250,9 +250,6 @@ def run_verdict(
     """
     cfg.validate()
     record = rate_record(cfg.robots, cfg.controllers, cfg.gains)
-    if resume:
-        check_resume(Path(cfg.out), "episodes.csv", record, rerun_changed, COLUMNS,
-                     KEY_COLUMNS, lambda row: (row["robot"], row["controller"]))  # fmt: skip
     settings = {
         **{
             k: v
@@ -261,6 +258,14 @@ def run_verdict(
         },
         RATES_KEY: record,
     }
+    if rerun_changed and not resume:
+        raise InvalidConfigError("--rerun-changed acts on a resume: add --resume")
+    if resume and not force:
+        check_resume(
+            Path(cfg.out), "episodes.csv", record, rerun_changed=rerun_changed,
+            settings=settings, free=("resamples",), columns=COLUMNS, key_columns=KEY_COLUMNS,
+            pair_of=lambda row: (row["robot"], row["controller"]),
+        )  # fmt: skip
     run = open_run(cfg.out, "episodes.csv", settings, resume=resume, force=force,
                    free=("resamples", RATES_KEY))  # fmt: skip
     out, episodes = run.out, run.results
