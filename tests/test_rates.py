@@ -59,6 +59,24 @@ def test_a_study_writes_resumes_and_refuses_to_overwrite(tmp_path) -> None:
     with pytest.raises(InvalidConfigError, match="different settings: episode_s"):
         run_study(_tiny(out, episode_s=0.4), resume=True, progress=False)
 
+    # the rows of a controller that ran at other gains: refused, or rerun alone
+    import yaml
+
+    saved = yaml.safe_load((out / "config.yml").read_text())
+    table = saved["rates"]["two_link"]
+    table["passivity"] = {**table["passivity"], "omega": 2.0 * table["passivity"]["omega"]}
+    (out / "config.yml").write_text(yaml.safe_dump(saved, sort_keys=False))
+    before = (out / "episodes.csv").read_text()
+    with pytest.raises(InvalidConfigError, match="gains of passivity on two_link changed"):
+        run_study(cfg, resume=True, progress=False)
+    assert (out / "episodes.csv").read_text() == before
+    run_study(cfg, resume=True, progress=False, rerun_changed=True)
+    lines = (out / "episodes.csv").read_text().splitlines()
+    assert len(lines) == 5 and all(",passivity," in line for line in lines[-2:])
+    again = load_frame(out / "episodes.csv").sort_values(["controller", "control_hz"])
+    expect = df.sort_values(["controller", "control_hz"])
+    np.testing.assert_array_equal(again["path_dist_rms"], expect["path_dist_rms"])
+
 
 def test_a_refused_rate_is_a_failed_row_and_does_not_hold(tmp_path, monkeypatch) -> None:
     real = rates.run_episode

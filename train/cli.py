@@ -159,7 +159,10 @@ def _rerun_flag(p: argparse.ArgumentParser) -> None:
 def _run_rates(cfg: Any, a: argparse.Namespace) -> None:
     from train.studies.rates import run_study
 
-    out = run_study(cfg, resume=a.resume, progress=not a.no_progress, force=a.force)
+    out = run_study(
+        cfg, resume=a.resume, progress=not a.no_progress, force=a.force,
+        rerun_changed=a.rerun_changed,
+    )  # fmt: skip
     print((out / "report.md").read_text().split("## Where each controller holds")[-1])
 
 
@@ -315,9 +318,11 @@ def _report(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
         kind = results_kind(folder)  # refuses a folder without results first
         saved = yaml.safe_load((folder / "config.yml").read_text())
         if kind == "rates":
+            from train.evaluation.rate_record import RATES_KEY
             from train.studies.rates import RatesConfig, write_report
 
-            cfg = RatesConfig(**{**saved, "out": str(folder)})
+            fields = {k: v for k, v in saved.items() if k != RATES_KEY}
+            cfg = RatesConfig(**{**fields, "out": str(folder)})
             if not args.no_rewrite:
                 write_report(cfg, folder)
             table = (folder / "report.md").read_text().split("## Where each controller holds")
@@ -414,7 +419,7 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Runner
     "replay": ("re-run the worst cases of a search", _replay_parser, _replay),
     "rates": (
         "the control rate as a robustness axis",
-        *_config_command("train.studies.rates:RatesConfig", "study", _run_rates),
+        *_config_command("train.studies.rates:RatesConfig", "study", _run_rates, _rerun_flag),
     ),
     "verdict": (
         "the verdict across robots and random test paths",

@@ -39,6 +39,7 @@ from train.common import arguments
 from train.common.checks import check_counts, check_known, check_lists
 from train.common.runs import open_run
 from train.evaluation.episode import EpisodeSettings, Task, run_episode
+from train.evaluation.rate_record import RATES_KEY, check_resume, rate_record
 from train.evaluation.results import read_episodes
 from train.plots.studies import rates_figure
 from train.studies.rows import run_rows
@@ -153,14 +154,36 @@ def run_one(cfg: RatesConfig, key: tuple[Any, ...]) -> dict[str, Any]:
 
 
 def run_study(
-    cfg: RatesConfig, resume: bool = False, progress: bool = True, force: bool = False
+    cfg: RatesConfig,
+    resume: bool = False,
+    progress: bool = True,
+    force: bool = False,
+    rerun_changed: bool = False,
 ) -> Path:
-    """Run (or resume) the study of ``cfg``, then write its report; return the folder."""
+    """Run (or resume) the study of ``cfg``, then write its report; return the folder.
+
+    ``config.yml`` records the rates every controller ran with (at 1 kHz, before the caps
+    of each control rate: :mod:`train.evaluation.rate_record`); a resume after they changed
+    is refused, or with ``rerun_changed`` reruns exactly those (robot, controller) rows.
+    """
     cfg.validate()
+    record = rate_record(cfg.robots, cfg.controllers, cfg.gains)
     settings = {
-        k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("workers", "out", "plots")
+        **{
+            k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("workers", "out", "plots")
+        },
+        RATES_KEY: record,
     }
-    run = open_run(cfg.out, "episodes.csv", settings, resume=resume, force=force)
+    if rerun_changed and not resume:
+        raise InvalidConfigError("--rerun-changed acts on a resume: add --resume")
+    if resume and not force:
+        check_resume(
+            Path(cfg.out), "episodes.csv", record, rerun_changed=rerun_changed,
+            settings=settings, free=(), columns=COLUMNS, key_columns=KEY_COLUMNS,
+            pair_of=lambda row: (row["robot"], row["controller"]),
+        )  # fmt: skip
+    run = open_run(cfg.out, "episodes.csv", settings, resume=resume, force=force,
+                   free=(RATES_KEY,))  # fmt: skip
     out, episodes = run.out, run.results
     finished = {
         tuple(r[k] for k in KEY_COLUMNS) for r in read_episodes(episodes, COLUMNS, KEY_COLUMNS)
