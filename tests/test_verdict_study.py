@@ -12,6 +12,7 @@ import train.studies.verdict_paths as verdict_paths
 import train.studies.verdict_study as vs
 from ptrack_gym.errors import InvalidConfigError
 from train.common.statistics import bootstrap_ci, hierarchical_bootstrap
+from train.evaluation.rate_record import RATES_KEY
 from train.studies.verdict_study import VerdictConfig, load_frame, run_verdict
 
 
@@ -140,7 +141,7 @@ def test_a_resume_at_changed_gains_is_refused_or_reruns_exactly_those_rows(tmp_p
     before = load_frame(out / "episodes.csv")
     omega = yaml.safe_load((tuned / "two_link-passivity.yml").read_text())["rates"]["omega"]
     saved = yaml.safe_load((out / "config.yml").read_text())
-    assert saved[vs.RATES_KEY]["two_link"]["passivity"]["omega"] == omega
+    assert saved[RATES_KEY]["two_link"]["passivity"]["omega"] == omega
     run_verdict(cfg, resume=True, progress=False)  # same gains: resumes, nothing to run
 
     record = yaml.safe_load((tuned / "two_link-passivity.yml").read_text())
@@ -169,9 +170,9 @@ def test_a_resume_at_changed_gains_is_refused_or_reruns_exactly_those_rows(tmp_p
     pd.testing.assert_series_equal(new[others], old[others])
     assert (new[~others] != old[~others]).all()  # ran again, at the new ω
     saved = yaml.safe_load((out / "config.yml").read_text())
-    assert saved[vs.RATES_KEY]["two_link"]["passivity"]["omega"] == 0.5 * omega
+    assert saved[RATES_KEY]["two_link"]["passivity"]["omega"] == 0.5 * omega
 
-    del saved[vs.RATES_KEY]  # a run written before the record: cannot be checked
+    del saved[RATES_KEY]  # a run written before the record: cannot be checked
     (out / "config.yml").write_text(yaml.safe_dump(saved))
     with pytest.raises(InvalidConfigError, match="records no rates"):
         run_verdict(cfg, resume=True, progress=False)

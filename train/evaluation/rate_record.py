@@ -22,7 +22,14 @@ import yaml
 from agents.registry import CONTROLLER_NAMES, effective_rates
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import ROBOTS
-from train.common.runs import CONFIG_FILE, check_saved_settings, has_results, write_atomic
+from train.common.runs import (
+    CONFIG_FILE,
+    RunFolder,
+    check_saved_settings,
+    has_results,
+    open_run,
+    write_atomic,
+)
 from train.evaluation.results import read_episodes
 
 #: The key of ``config.yml`` that holds the record.
@@ -104,3 +111,37 @@ def check_resume(
     writer.writerows(kept)
     write_atomic(episodes, text.getvalue())
     print(f"--rerun-changed: dropped {len(rows) - len(kept)} rows of {named}", flush=True)
+
+
+def open_recorded_run(
+    out: str | Path,
+    results: str,
+    settings: Mapping[str, Any],
+    record: Record,
+    *,
+    resume: bool,
+    force: bool,
+    rerun_changed: bool,
+    free: Collection[str],
+    columns: Sequence[str],
+    key_columns: Sequence[str],
+    pair_of: Callable[[Mapping[str, str]], tuple[str, str]],
+) -> RunFolder:
+    """:func:`train.common.runs.open_run` for a study whose ``config.yml`` also records
+    ``record`` (the rates its rows run at): on resume (not ``force``) first
+    :func:`check_resume` — other settings, then changed gains refused or, with
+    ``rerun_changed``, their rows dropped — then the folder opened with the record written.
+
+    Raises:
+        InvalidConfigError: ``rerun_changed`` without ``resume``, or as :func:`check_resume`
+            and :func:`train.common.runs.open_run`.
+    """
+    settings = {**settings, RATES_KEY: record}
+    if rerun_changed and not resume:
+        raise InvalidConfigError("--rerun-changed acts on a resume: add --resume")
+    if resume and not force:
+        check_resume(
+            Path(out), results, record, rerun_changed=rerun_changed, settings=settings,
+            free=free, columns=columns, key_columns=key_columns, pair_of=pair_of,
+        )  # fmt: skip
+    return open_run(out, results, settings, resume=resume, force=force, free=(*free, RATES_KEY))

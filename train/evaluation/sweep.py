@@ -27,9 +27,8 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
-from train.common.runs import open_run, worker_count, worker_pool
+from train.common.runs import worker_count, worker_pool
 from train.evaluation.config import EvalConfig
 from train.evaluation.episode import (
     KEY_COLUMNS,
@@ -39,7 +38,7 @@ from train.evaluation.episode import (
     label,
     run_episode,
 )
-from train.evaluation.rate_record import RATES_KEY, check_resume, rate_record
+from train.evaluation.rate_record import open_recorded_run, rate_record
 from train.evaluation.results import (
     COLUMNS,
     EpisodeWriter,
@@ -140,19 +139,11 @@ def run_sweep(
     for line in cfg.base_gain_mismatches():
         print(f"warning: {line}", file=sys.stderr, flush=True)
     robot = profile_for_env_id(cfg.env_id).name
-    record = rate_record([robot], cfg.controllers, cfg.gains)
-    settings = {**dataclasses.asdict(cfg), RATES_KEY: record}
-    if rerun_changed and not resume:
-        raise InvalidConfigError("--rerun-changed acts on a resume: add --resume")
-    if resume and not force:
-        check_resume(
-            Path(cfg.out), "episodes.csv", record, rerun_changed=rerun_changed,
-            settings=settings, free=RUN_ONLY_FIELDS, columns=COLUMNS, key_columns=KEY_COLUMNS,
-            pair_of=lambda row: (robot, row["controller"]),
-        )  # fmt: skip
-    run = open_run(
-        cfg.out, "episodes.csv", settings, resume=resume, force=force,
-        free=(*RUN_ONLY_FIELDS, RATES_KEY),
+    run = open_recorded_run(
+        cfg.out, "episodes.csv", dataclasses.asdict(cfg),
+        rate_record([robot], cfg.controllers, cfg.gains), resume=resume, force=force,
+        rerun_changed=rerun_changed, free=RUN_ONLY_FIELDS, columns=COLUMNS,
+        key_columns=KEY_COLUMNS, pair_of=lambda row: (robot, row["controller"]),
     )  # fmt: skip
     out, episodes = run.out, run.results
     finished = done_keys(read_episodes(episodes))  # validates the file before anything runs

@@ -37,9 +37,8 @@ from ptrack_gym.metrics import METRIC_NAMES
 from ptrack_gym.robots import ROBOTS
 from train.common import arguments
 from train.common.checks import check_counts, check_known, check_lists
-from train.common.runs import open_run
 from train.evaluation.episode import EpisodeSettings, Task, run_episode
-from train.evaluation.rate_record import RATES_KEY, check_resume, rate_record
+from train.evaluation.rate_record import open_recorded_run, rate_record
 from train.evaluation.results import read_episodes
 from train.plots.studies import rates_figure
 from train.studies.rows import run_rows
@@ -167,23 +166,14 @@ def run_study(
     is refused, or with ``rerun_changed`` reruns exactly those (robot, controller) rows.
     """
     cfg.validate()
-    record = rate_record(cfg.robots, cfg.controllers, cfg.gains)
     settings = {
-        **{
-            k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("workers", "out", "plots")
-        },
-        RATES_KEY: record,
+        k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("workers", "out", "plots")
     }
-    if rerun_changed and not resume:
-        raise InvalidConfigError("--rerun-changed acts on a resume: add --resume")
-    if resume and not force:
-        check_resume(
-            Path(cfg.out), "episodes.csv", record, rerun_changed=rerun_changed,
-            settings=settings, free=(), columns=COLUMNS, key_columns=KEY_COLUMNS,
-            pair_of=lambda row: (row["robot"], row["controller"]),
-        )  # fmt: skip
-    run = open_run(cfg.out, "episodes.csv", settings, resume=resume, force=force,
-                   free=(RATES_KEY,))  # fmt: skip
+    run = open_recorded_run(
+        cfg.out, "episodes.csv", settings, rate_record(cfg.robots, cfg.controllers, cfg.gains),
+        resume=resume, force=force, rerun_changed=rerun_changed, free=(), columns=COLUMNS,
+        key_columns=KEY_COLUMNS, pair_of=lambda row: (row["robot"], row["controller"]),
+    )  # fmt: skip
     out, episodes = run.out, run.results
     finished = {
         tuple(r[k] for k in KEY_COLUMNS) for r in read_episodes(episodes, COLUMNS, KEY_COLUMNS)

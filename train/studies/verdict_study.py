@@ -51,12 +51,11 @@ from ptrack_gym.robots import ROBOTS
 from train.common import arguments
 from train.common.checks import check_counts, check_known, check_lists, check_path_seeds
 from train.common.paired_tests import TooFewPairsError
-from train.common.runs import open_run
 from train.common.statistics import hierarchical_bootstrap
 from train.evaluation.config import require_extra
 from train.evaluation.envs import check_env_kwargs, env_kwargs
 from train.evaluation.episode import EpisodeSettings, Task, run_episode
-from train.evaluation.rate_record import RATES_KEY, check_resume, rate_record
+from train.evaluation.rate_record import open_recorded_run, rate_record
 from train.evaluation.results import read_episodes
 from train.evaluation.verdict import (
     BOTH_METRICS,
@@ -249,25 +248,17 @@ def run_verdict(
     naming the pairs; with ``rerun_changed`` their rows are dropped and run again.
     """
     cfg.validate()
-    record = rate_record(cfg.robots, cfg.controllers, cfg.gains)
     settings = {
-        **{
-            k: v
-            for k, v in dataclasses.asdict(cfg).items()
-            if k not in ("workers", "out", "backend", "ray_address")
-        },
-        RATES_KEY: record,
+        k: v
+        for k, v in dataclasses.asdict(cfg).items()
+        if k not in ("workers", "out", "backend", "ray_address")
     }
-    if rerun_changed and not resume:
-        raise InvalidConfigError("--rerun-changed acts on a resume: add --resume")
-    if resume and not force:
-        check_resume(
-            Path(cfg.out), "episodes.csv", record, rerun_changed=rerun_changed,
-            settings=settings, free=("resamples",), columns=COLUMNS, key_columns=KEY_COLUMNS,
-            pair_of=lambda row: (row["robot"], row["controller"]),
-        )  # fmt: skip
-    run = open_run(cfg.out, "episodes.csv", settings, resume=resume, force=force,
-                   free=("resamples", RATES_KEY))  # fmt: skip
+    run = open_recorded_run(
+        cfg.out, "episodes.csv", settings, rate_record(cfg.robots, cfg.controllers, cfg.gains),
+        resume=resume, force=force, rerun_changed=rerun_changed, free=("resamples",),
+        columns=COLUMNS, key_columns=KEY_COLUMNS,
+        pair_of=lambda row: (row["robot"], row["controller"]),
+    )  # fmt: skip
     out, episodes = run.out, run.results
     finished = {
         tuple(r[k] for k in KEY_COLUMNS) for r in read_episodes(episodes, COLUMNS, KEY_COLUMNS)
