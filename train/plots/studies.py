@@ -163,7 +163,8 @@ def verdict_plot(
         ax.grid(True, axis="y", which="both", alpha=0.3)
     axes[0][0].set_ylabel("passivity / strongest rival (mean; < 1: passivity lower)", fontsize=8)
     handles, labels = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, labels, fontsize=7, loc="upper center", ncol=3)
-    fig.tight_layout(rect=(0, 0, 1, 0.88))
-    fig.savefig(path, dpi=110)
+    columns = 3 if len(robots) > 1 else 2  # one panel is too narrow for three columns
+    fig.legend(handles, labels, fontsize=7, loc="upper center", ncol=columns)
+    fig.tight_layout(rect=(0, 0, 1, 0.86 if columns == 3 else 0.80))
+    fig.savefig(path, dpi=110, bbox_inches="tight")  # nothing of the legend cut off
     plt.close(fig)
