@@ -106,3 +106,12 @@ def test_the_paper_law_tunes_no_rate_it_fixes() -> None:
     assert "damping_ratio" in TUNABLE["passivity"]
     assert not set(TUNABLE["passivity_paper"]) & set(passivity.PAPER_LAW)
     assert set(TUNABLE["passivity_paper"]) == set(TUNABLE["passivity"]) - set(passivity.PAPER_LAW)
+
+
+def test_the_paper_laws_rates_are_the_ones_it_runs() -> None:
+    """``effective_rates`` applies the rates the paper's law fixes, whatever the robot's
+    profile says (the iiwa's re-synchronises σ; the paper's law does not)."""
+    profile = robot_profile("iiwa")
+    assert effective_rates(profile, "passivity")["sync_rate"] > 0.0
+    rates = effective_rates(profile, "passivity_paper")
+    assert {k: rates[k] for k in passivity.PAPER_LAW} == passivity.PAPER_LAW

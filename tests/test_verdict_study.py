@@ -176,6 +176,19 @@ def test_a_resume_at_changed_gains_is_refused_or_reruns_exactly_those_rows(tmp_p
     (out / "config.yml").write_text(yaml.safe_dump(saved))
     with pytest.raises(InvalidConfigError, match="records no rates"):
         run_verdict(cfg, resume=True, progress=False)
+    calls.clear()  # ... unless every model-based row runs again
+    run_verdict(cfg, resume=True, progress=False, rerun_changed=True)
+    assert sorted(calls) == sorted(controllers * 4)
+    pd.testing.assert_series_equal(
+        load_frame(out / "episodes.csv").set_index(key).sort_index()["path_dist_rms"], new
+    )
+    # a results file with a header alone and no record: nothing ran, nothing to check
+    header = (out / "episodes.csv").read_text().splitlines()[0] + "\n"
+    (out / "episodes.csv").write_text(header)
+    (out / "config.yml").write_text(yaml.safe_dump(saved))  # still without a record
+    calls.clear()
+    run_verdict(cfg, resume=True, progress=False)
+    assert len(calls) == len(before)
 
 
 def test_an_existing_study_is_refused_without_resume_or_force(tmp_path):

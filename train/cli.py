@@ -123,7 +123,10 @@ def _run_evaluate(cfg: Any, a: argparse.Namespace) -> None:
 def _run_study(cfg: Any, a: argparse.Namespace) -> Path:
     from train.rl.study import run_study
 
-    return run_study(cfg, a.resume, not a.no_progress, force=a.force) / "final.md"
+    return (
+        run_study(cfg, a.resume, not a.no_progress, force=a.force, rerun_changed=a.rerun_changed)
+        / "final.md"
+    )
 
 
 def _run_fronts(cfg: Any, a: argparse.Namespace) -> None:
@@ -152,7 +155,8 @@ def _rerun_flag(p: argparse.ArgumentParser) -> None:
         "--rerun-changed",
         action="store_true",
         help="with --resume: drop the rows of controllers whose gains changed since they ran "
-        "(tuned again, other defaults) and run them again; without it such a resume is refused",
+        "(tuned again, other defaults; every model-based controller's in a folder written "
+        "before gains were recorded) and run them again; without it such a resume is refused",
     )
 
 
@@ -405,7 +409,7 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Runner
     "campaign": ("train the runs of a campaign file", *_delegate("train.rl.campaign")),
     "study": (
         "learning curves and final tables of RL runs",
-        *_config_command("train.rl.study:StudyConfig", "evaluation", _run_study),
+        *_config_command("train.rl.study:StudyConfig", "evaluation", _run_study, _rerun_flag),
     ),
     "tune": ("equal-budget gain tuning (Optuna)", _tune_parser, _tune),
     "fronts": (

@@ -6,7 +6,9 @@ A record is robot → controller → every rate the controller runs with there
 file's or the given ones). :func:`check_resume` compares a saved record with today's: a
 changed pair is refused by name, or — ``rerun_changed`` — its rows are dropped from the
 results file so that the resume runs them again, every other row kept. Learned entrants
-(``sb3:<run folder>``) have no rates here; their runs pin their own base gains.
+(``sb3:<run folder>``) have no rates here and their rows are never dropped (a residual
+pins its base's tuned rates in its own ``config.yml`` since that was recorded; an older run
+takes today's).
 """
 
 from __future__ import annotations
@@ -78,22 +80,30 @@ def check_resume(
     rewrite ``out/results`` without their rows (``pair_of(row)`` is a row's (robot,
     controller)).
 
+    A saved ``config.yml`` without a record (a run written before records) counts every
+    pair as changed: refused, or with ``rerun_changed`` every registry controller's rows run
+    again. A results file with no rows is not checked.
+
     Raises:
         InvalidConfigError: other settings, a changed pair without ``rerun_changed``, or a
-            saved ``config.yml`` that records no rates (its rows cannot be checked).
+            saved ``config.yml`` that records no rates without ``rerun_changed``.
     """
     check_saved_settings(out, results, settings, (*free, RATES_KEY))
     episodes, saved_file = out / results, out / CONFIG_FILE
     if not (has_results(episodes) and saved_file.exists()):
         return
+    rows = read_episodes(episodes, columns, key_columns)
+    if not rows:  # a header alone: nothing ran at any gains
+        return
     saved = yaml.safe_load(saved_file.read_text()) or {}
-    if RATES_KEY not in saved:
+    if RATES_KEY not in saved and not rerun_changed:
         raise InvalidConfigError(
             f"{saved_file} records no rates (a run written before they were recorded): its "
-            "rows cannot be checked against today's gains; add the record of the gains they "
-            "ran at, or start over with --force"
+            "rows cannot be checked against today's gains; --rerun-changed runs every "
+            "model-based controller's rows again (learned entrants' rows are kept), --force "
+            "starts over"
         )
-    changed = changed_pairs(saved[RATES_KEY], now)
+    changed = changed_pairs(saved.get(RATES_KEY) or {}, now)  # no record: every pair
     if not changed:
         return
     named = ", ".join(f"{c} on {r}" for r, c in changed)
@@ -102,7 +112,6 @@ def check_resume(
             f"the gains of {named} changed since {out} ran them (agents/tuned or the "
             "defaults): --rerun-changed drops those rows and runs them again"
         )
-    rows = read_episodes(episodes, columns, key_columns)
     drop = set(changed)
     kept = [r for r in rows if pair_of(r) not in drop]
     text = io.StringIO()

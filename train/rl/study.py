@@ -118,12 +118,17 @@ class StudyConfig:
 
 
 def run_study(
-    cfg: StudyConfig, resume: bool = False, progress: bool = True, force: bool = False
+    cfg: StudyConfig,
+    resume: bool = False,
+    progress: bool = True,
+    force: bool = False,
+    rerun_changed: bool = False,
 ) -> Path:
     """Evaluate every checkpoint of ``cfg.runs`` and the final ones under every preset;
     write the curves, ``final.md`` and the figures (module docstring); return the folder.
     ``resume`` continues both sweeps, ``force`` starts both over in folders that hold files
-    (:func:`train.common.runs.open_run`)."""
+    (:func:`train.common.runs.open_run`), ``rerun_changed`` reruns the rows of baselines
+    whose gains changed since (:mod:`train.evaluation.rate_record`)."""
     out = Path(cfg.out)
     runs = discover(Path(cfg.runs))
     if cfg.every is not None:
@@ -132,8 +137,9 @@ def run_study(
     final_cfg = sweep_config(runs, cfg.episodes, out / "final", cfg.workers, cfg.presets)
     sweep_cfg.validate()
     final_cfg.validate()
-    run_sweep(sweep_cfg, resume=resume, progress=progress, show=False, force=force)
-    run_sweep(final_cfg, resume=resume, progress=progress, show=False, force=force)
+    for sweep in (sweep_cfg, final_cfg):
+        run_sweep(sweep, resume=resume, progress=progress, show=False, force=force,
+                  rerun_changed=rerun_changed)  # fmt: skip
     df = load_frame(out / "episodes.csv")
     final = load_frame(out / "final" / "episodes.csv")
     curves = curve_frame(df, runs)
