@@ -114,19 +114,13 @@ def _config_command(
 def _run_evaluate(cfg: Any, a: argparse.Namespace) -> None:
     from train.evaluation.sweep import run_sweep
 
-    run_sweep(
-        cfg, resume=a.resume, progress=not a.no_progress, force=a.force,
-        rerun_changed=a.rerun_changed,
-    )  # fmt: skip
+    run_sweep(cfg, **_resumable(a))
 
 
 def _run_study(cfg: Any, a: argparse.Namespace) -> Path:
     from train.rl.study import run_study
 
-    return (
-        run_study(cfg, a.resume, not a.no_progress, force=a.force, rerun_changed=a.rerun_changed)
-        / "final.md"
-    )
+    return run_study(cfg, **_resumable(a)) / "final.md"
 
 
 def _run_fronts(cfg: Any, a: argparse.Namespace) -> None:
@@ -144,10 +138,13 @@ def _run_adversary(cfg: Any, a: argparse.Namespace) -> None:
 def _run_verdict(cfg: Any, a: argparse.Namespace) -> Path:
     from train.studies.verdict_study import run_verdict
 
-    return (
-        run_verdict(cfg, a.resume, not a.no_progress, force=a.force, rerun_changed=a.rerun_changed)
-        / "verdict.md"
-    )
+    return run_verdict(cfg, **_resumable(a)) / "verdict.md"
+
+
+def _resumable(a: argparse.Namespace) -> dict[str, bool]:
+    """The run options of a study whose rows record their gains (``--rerun-changed``)."""
+    return {"resume": a.resume, "progress": not a.no_progress, "force": a.force,
+            "rerun_changed": a.rerun_changed}  # fmt: skip
 
 
 def _rerun_flag(p: argparse.ArgumentParser) -> None:
@@ -163,10 +160,7 @@ def _rerun_flag(p: argparse.ArgumentParser) -> None:
 def _run_rates(cfg: Any, a: argparse.Namespace) -> None:
     from train.studies.rates import run_study
 
-    out = run_study(
-        cfg, resume=a.resume, progress=not a.no_progress, force=a.force,
-        rerun_changed=a.rerun_changed,
-    )  # fmt: skip
+    out = run_study(cfg, **_resumable(a))
     print((out / "report.md").read_text().split("## Where each controller holds")[-1])
 
 
@@ -321,11 +315,10 @@ def _report(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
     for folder in args.folders:
         kind = results_kind(folder)  # refuses a folder without results first
         saved = yaml.safe_load((folder / "config.yml").read_text())
+        fields = {k: v for k, v in saved.items() if k != "rates"}  # the gains record
         if kind == "rates":
-            from train.evaluation.rate_record import RATES_KEY
             from train.studies.rates import RatesConfig, write_report
 
-            fields = {k: v for k, v in saved.items() if k != RATES_KEY}
             cfg = RatesConfig(**{**fields, "out": str(folder)})
             if not args.no_rewrite:
                 write_report(cfg, folder)
@@ -333,17 +326,19 @@ def _report(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
             print(f"{folder / 'report.md'}: where each controller holds{table[-1]}")
         else:
             from train.evaluation.config import EvalConfig
-            from train.evaluation.rate_record import RATES_KEY
             from train.evaluation.sweep import finish
 
-            fields = {k: v for k, v in saved.items() if k != RATES_KEY}
             cfg = EvalConfig(**{**fields, "out": str(folder), "video": False})
             if not args.no_rewrite:
                 finish(cfg, folder, show=False)
             print(f"{folder / 'report.md'}:\n")
             print(headline_of(folder, cfg.metric) + "\n")
             if args.against is not None:
-                print(agreement_of(folder, args.against) + "\n")
+                from train.evaluation.verdict import folder_agreement
+
+                if results_kind(args.against) != "evaluate":
+                    p.error(f"--against {args.against}: not an evaluation's results folder")
+                print(folder_agreement(folder, args.against) + "\n")
         if args.publish is not None:
             from train.evaluation.publish import publish_report
 
@@ -351,29 +346,6 @@ def _report(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
             for path in publish_report(folder, args.publish, docs):
                 print(f"published {path}")
     return 0
-
-
-def agreement_of(folder: Path, against: Path) -> str:
-    """Whether two evaluation folders rank their controllers alike
-    (:func:`train.evaluation.verdict.ranking_agreement`), on both metrics; the focus is
-    the passivity controller where both ran it."""
-    import pandas as pd
-
-    from ptrack_gym.errors import InvalidConfigError
-    from train.evaluation.verdict import BOTH_METRICS, agreement_table, ranking_agreement
-
-    if results_kind(against) != "evaluate":
-        raise InvalidConfigError(f"--against {against}: not an evaluation's results folder")
-    a, b = pd.read_csv(folder / "summary.csv"), pd.read_csv(against / "summary.csv")
-    focus = "passivity" if "passivity" in set(a.controller) & set(b.controller) else None
-    blocks = []
-    for metric in BOTH_METRICS:
-        if f"{metric}_mean" in a and f"{metric}_mean" in b:
-            table = agreement_table(
-                ranking_agreement(a, b, metric, focus), (folder.name, against.name)
-            )
-            blocks.append(f"Rankings, {folder.name} against {against.name}, {metric}:\n\n{table}")
-    return "\n\n".join(blocks)
 
 
 def headline_of(folder: Path, metric: str) -> str:

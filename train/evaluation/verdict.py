@@ -21,6 +21,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 
@@ -253,3 +255,19 @@ def agreement_table(agreement: pd.DataFrame, names: tuple[str, str] = ("a", "b")
         f"conditions; Kendall τ mean {tau.mean():.2f}, min {tau.min():.2f}."
     )
     return "\n".join(lines)
+
+
+def folder_agreement(folder: Path, against: Path) -> str:
+    """Whether two evaluation results folders rank their controllers alike
+    (:func:`ranking_agreement` on their ``summary.csv``), on both metrics; the focus is the
+    passivity controller where both ran it (``ptrack report --against``)."""
+    a, b = pd.read_csv(folder / "summary.csv"), pd.read_csv(against / "summary.csv")
+    focus = "passivity" if "passivity" in set(a.controller) & set(b.controller) else None
+    blocks = []
+    for metric in BOTH_METRICS:
+        if f"{metric}_mean" in a and f"{metric}_mean" in b:
+            table = agreement_table(
+                ranking_agreement(a, b, metric, focus), (folder.name, against.name)
+            )
+            blocks.append(f"Rankings, {folder.name} against {against.name}, {metric}:\n\n{table}")
+    return "\n\n".join(blocks)
