@@ -77,26 +77,18 @@ PAPER_LAW = {"sync_rate": 0.0, "saturation_aware": False, "zoh_damping": 0.0, "d
 PAPER_TUNABLE = {k: v for k, v in TUNABLE.items() if k not in PAPER_LAW}
 
 
-@dataclass(frozen=True)
-class PaperRates:
+class PAPER_RATES:  # a namespace of constants, as a controller's module is
     """The rate source of the paper's law (``agents.registry.RateSource``): the passivity
     controller's profile key, default rates and bandwidths, :data:`PAPER_TUNABLE` — the
     tuner must not search a rate :data:`PAPER_LAW` fixes (it could not act) — and those
-    fixed rates (``FIXED``)."""
+    fixed rates (``FIXED``: ``agents.registry.effective_rates`` applies them last)."""
 
-    NAME: str = NAME
-    DEFAULT_RATES: Mapping[str, Any] = dataclasses.field(default_factory=lambda: DEFAULT_RATES)
-    TUNABLE: Mapping[str, tuple[float, float, bool]] = dataclasses.field(
-        default_factory=lambda: PAPER_TUNABLE
-    )
-    BANDWIDTHS: tuple[str, ...] = BANDWIDTHS
-    #: Rates the law fixes whatever the defaults, the robot's or the tuned ones say
-    #: (``agents.registry.effective_rates`` applies them last).
-    FIXED: Mapping[str, Any] = dataclasses.field(default_factory=lambda: PAPER_LAW)
+    NAME = NAME
+    DEFAULT_RATES = DEFAULT_RATES
+    TUNABLE = PAPER_TUNABLE
+    BANDWIDTHS = BANDWIDTHS
+    FIXED = PAPER_LAW
 
-
-#: The paper's law's rate source (its registry entry's ``rates``).
-PAPER_RATES = PaperRates()
 
 _PUMPS = ("metric", "paper")
 #: The default and tuned gains run at most this fraction of their stated period limit
