@@ -168,6 +168,33 @@ def still_tuned(robot: str, controller: str, rates: Mapping[str, Any]) -> bool:
     return path.exists() and dict(rates) == tuned_rates(robot, controller)
 
 
+def pinned_rates(profile: RobotProfile, name: str, gains: str) -> dict[str, float]:
+    """The rates a residual run pins for its base ``name`` on the robot of ``profile`` with
+    ``gains`` ("tuned": the tuned file's rates; "default": every numeric rate of
+    :func:`effective_rates` — the gains, not choices such as ``pump``), so a later retune
+    or a new default cannot move the base the residual learned to correct.
+
+    Raises:
+        InvalidConfigError: an unknown controller or gain choice, or no tuned gains.
+    """
+    if check_gain_choice(gains) == "tuned":
+        return tuned_rates(profile.name, name)
+    return {
+        key: value
+        for key, value in effective_rates(profile, name, "default").items()
+        if isinstance(value, (int, float)) and not isinstance(value, bool)
+    }
+
+
+def still_pinned(profile: RobotProfile, name: str, gains: str, rates: Mapping[str, Any]) -> bool:
+    """Whether ``rates`` — pinned by :func:`pinned_rates` with ``gains`` when a run trained —
+    are still what ``name`` runs today with those gains (``False`` where the pair has no
+    tuned gains any more)."""
+    if check_gain_choice(gains) == "tuned":
+        return still_tuned(profile.name, name, rates)
+    return dict(rates) == pinned_rates(profile, name, "default")
+
+
 def effective_rates(
     profile: RobotProfile, name: str, gains: str | Mapping[str, Any] | None = "default"
 ) -> dict[str, Any]:

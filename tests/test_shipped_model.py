@@ -133,3 +133,26 @@ def test_the_iiwa_residuals_keep_the_base_they_trained_over(monkeypatch) -> None
     cfg = load_config(ROOT / "train/configs/evaluate/main_rl_iiwa.yml", [])
     lines = cfg.base_gain_mismatches()
     assert sum("at tuned rates since retuned" in line for line in lines) == 2
+
+
+def test_every_shipped_residual_pins_the_rates_of_its_base() -> None:
+    """A shipped residual over a controller (not a network) names the rates its base ran
+    (``derived.base_rates``), each a rate that base knows, so moving a default or retuning
+    cannot silently change the base it learned to correct."""
+    from agents.registry import effective_rates
+    from agents.residual import NETWORK_BASE
+    from ptrack_gym.robots import robot_profile
+    from train.evaluation.policies import run_config
+
+    residuals = 0
+    for folder in sorted((ROOT / "models").iterdir()):
+        run = run_config(folder)
+        base = run["config"].get("residual", "none")
+        if base in ("none", NETWORK_BASE):
+            continue
+        residuals += 1
+        pinned = run["derived"].get("base_rates")
+        assert pinned, folder.name
+        known = effective_rates(robot_profile(run["derived"]["robot"]), base)
+        assert set(pinned) <= set(known), folder.name
+    assert residuals >= 6

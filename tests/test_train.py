@@ -398,6 +398,9 @@ def test_critic_warmup_freezes_the_actor_and_zero_actor_runs_the_base(tmp_path: 
 
 
 def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
+    from agents.registry import pinned_rates
+    from ptrack_gym.robots import robot_profile
+
     res = validate(
         parse_args(argv(tmp_path / "k", "sac", "computed_torque", 100, "--reward", "kernel",
                         "--kernel-weights", "1", "0", "0", "--max-path-distance", "0.3",
@@ -413,7 +416,7 @@ def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
         "gate_rad": 0.02,
         "gate_deadband_rad": 0.0,
         "scale_accel_rad_s2": None,
-        "base_gains": "default",
+        "base_gains": pinned_rates(robot_profile("two_link"), "computed_torque", "default"),
         "prior_gain_per_rad": 0.0,
         "base_model": None,
         "tank": False,
@@ -470,11 +473,48 @@ def test_a_run_pins_its_tuned_base_and_is_evaluated_and_resumed_over_it(tmp_path
         parse_args([*argv(out, "sac", "passivity", 200, "--base-gains", "tuned"), "--resume"])
     )
     assert resumed.residual_kwargs["base_gains"] == older
-    # default gains pin nothing
-    plain = validate(parse_args(argv(tmp_path / "d", "sac", "passivity", 100)))
-    write_run_files(plain, tmp_path / "d", None)
-    derived = yaml.safe_load((tmp_path / "d" / "config.yml").read_text())["derived"]
-    assert derived["base_rates"] is None
+
+
+def test_a_run_over_default_gains_pins_them(tmp_path: Path, monkeypatch) -> None:
+    """Default gains are pinned too (every numeric rate of the day's default): the day a
+    default moves, the run, its evaluation and its --resume keep the base it trained over,
+    and a sweep that runs the base alone at the new default says so."""
+    from agents import passivity, passivity_gains
+    from agents.registry import make_controller, pinned_rates, still_pinned
+    from ptrack_gym.robots import robot_profile
+    from train.evaluation.envs import trained_wrapper_kwargs
+    from train.rl.run import _env_factory, write_run_files
+
+    profile = robot_profile("two_link")
+    out = tmp_path / "d"
+    res = validate(parse_args(argv(out, "sac", "passivity", 100)))
+    write_run_files(res, out, None)
+    saved = yaml.safe_load((out / "config.yml").read_text())
+    pinned = saved["derived"]["base_rates"]
+    assert pinned == pinned_rates(profile, "passivity", "default")
+    assert "omega" in pinned and "pump" not in pinned  # the gains, not the law's choices
+    assert still_pinned(profile, "passivity", "default", pinned)
+    # the default moves
+    moved = {**passivity_gains.DEFAULT_RATES, "damping_ratio": 0.7, "omega": 9.0}
+    for where in (passivity, passivity_gains):  # the law's module re-exports the gains'
+        monkeypatch.setattr(where, "DEFAULT_RATES", moved)
+    assert not still_pinned(profile, "passivity", "default", pinned)
+    assert trained_wrapper_kwargs(saved)["base_gains"] == pinned
+    (out / "checkpoints").mkdir()
+    (out / "checkpoints" / "rl_model_100_steps.zip").write_bytes(b"")
+    resumed = validate(parse_args([*argv(out, "sac", "passivity", 200), "--resume"]))
+    assert resumed.residual_kwargs["base_gains"] == pinned
+    env = _env_factory(resumed, "none")()
+    try:
+        assert env.controller.gains == make_controller("passivity", env, pinned).gains
+        assert env.controller.gains != make_controller("passivity", env).gains
+    finally:
+        env.close()
+    # a pure policy has no base to pin
+    assert (
+        res.residual_kwargs
+        and validate(parse_args(argv(tmp_path / "n", "sac", "none", 100))).residual_kwargs == {}
+    )
 
 
 def test_control_prior_reaches_the_training_env(tmp_path: Path) -> None:
@@ -495,6 +535,8 @@ def test_control_prior_reaches_the_training_env(tmp_path: Path) -> None:
 
 def test_acceleration_authority_reaches_the_training_env(tmp_path: Path) -> None:
     """--scale-accel-rad-s2 replaces --scale-fraction: the wrapper's residual is M(q) α a."""
+    from agents.registry import pinned_rates
+    from ptrack_gym.robots import robot_profile
     from train.rl.run import _env_factory
 
     res = validate(
@@ -503,7 +545,8 @@ def test_acceleration_authority_reaches_the_training_env(tmp_path: Path) -> None
     )  # fmt: skip
     assert res.residual_kwargs == {
         "action_penalty": 0.0, "gate_rad": None, "gate_deadband_rad": 0.0,
-        "scale_accel_rad_s2": 10.0, "base_gains": "default", "prior_gain_per_rad": 0.0,
+        "scale_accel_rad_s2": 10.0, "prior_gain_per_rad": 0.0,
+        "base_gains": pinned_rates(robot_profile("two_link"), "computed_torque", "default"),
         "base_model": None, "tank": False, "tank_beta": 0.5,
     }  # fmt: skip
     env = _env_factory(res, "none")()

@@ -187,7 +187,8 @@ class EvalConfig:
         this sweep, runs at other gains here than the residual was trained over (its run's
         ``base_gains``): an unfair pairing the sweep warns about (``ptrack study`` builds
         its sweeps with the runs' own gains)."""
-        from agents.registry import still_tuned
+        from agents.registry import still_pinned
+        from ptrack_gym.robots import robot_profile
         from train.evaluation.policies import run_config, sb3_files
 
         lines = []
@@ -204,10 +205,12 @@ class EvalConfig:
                     f"{c} was trained over {base} at {gains} gains; {base} alone runs here at "
                     f"{self.gains} gains (the residual keeps its own base's)"
                 )
-            elif pinned and self.gains == "tuned" and not still_tuned(self._robot, base, pinned):
+            elif pinned and not still_pinned(robot_profile(self._robot), base, gains, pinned):
+                since = "retuned" if gains == "tuned" else "changed"
                 lines.append(
-                    f"{c} was trained over {base} at tuned rates since retuned ({pinned}); "
-                    f"{base} alone runs here at agents/tuned's (the residual keeps its own base's)"
+                    f"{c} was trained over {base} at {gains} rates since {since} ({pinned}); "
+                    f"{base} alone runs here at today's {gains} rates (the residual keeps its "
+                    "own base's)"
                 )
         return lines
 

@@ -45,9 +45,9 @@ def residual_wrapper_kwargs(config: Mapping[str, Any]) -> dict[str, Any]:
 def trained_wrapper_kwargs(run: Mapping[str, Any]) -> dict[str, Any]:
     """The residual wrapper's arguments of a trained run (its whole ``config.yml``:
     ``config`` and ``derived``): :func:`residual_wrapper_kwargs`, with the base's rates
-    the run pinned (``derived.base_rates``, written when it trained over ``"tuned"``
-    gains) in place of ``"tuned"`` — so a shipped residual keeps the base it learned to
-    correct when ``agents/tuned`` is retuned."""
+    the run pinned (``derived.base_rates``: the tuned or default rates it trained over) in
+    place of its ``base_gains`` choice — so a shipped residual keeps the base it learned to
+    correct when ``agents/tuned`` is retuned or a default changes."""
     kwargs = residual_wrapper_kwargs(run["config"])
     pinned = (run.get("derived") or {}).get("base_rates")
     if pinned:

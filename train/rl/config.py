@@ -21,8 +21,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from agents.registry import tuned_rates
+from agents.registry import pinned_rates, tuned_rates
 from agents.residual import (
+    NETWORK_BASE,
     RESIDUAL_BASES,
     ResidualSpec,
     check_base_gains,
@@ -32,6 +33,7 @@ from agents.residual import (
 )
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
+from ptrack_gym.robots.profile import RobotProfile
 from train.common.algorithms import ALGO_NAMES, ON_POLICY, RECURRENT_ALGOS
 from train.common.arguments import (
     add_config_arguments,
@@ -392,8 +394,8 @@ def validate(cfg: TrainConfig) -> Resolved:
             "or a new --out"
         )
     check_agreement(dataclasses.asdict(cfg), algo_kwargs, n_envs, done, int(steps))
-    if residual_kwargs and cfg.base_gains == "tuned":  # pinned: agents/tuned may be retuned
-        residual_kwargs = {**residual_kwargs, "base_gains": _pinned_rates(cfg, profile.name)}
+    if residual_kwargs and cfg.residual != NETWORK_BASE:  # pinned: gains may be retuned
+        residual_kwargs = {**residual_kwargs, "base_gains": _pinned_rates(cfg, profile)}
     return Resolved(
         cfg,
         profile.name,
@@ -409,17 +411,18 @@ def validate(cfg: TrainConfig) -> Resolved:
     )
 
 
-def _pinned_rates(cfg: TrainConfig, robot: str) -> dict[str, Any]:
-    """The tuned rates of the base a run trains over: on ``--resume``, those it started with
+def _pinned_rates(cfg: TrainConfig, profile: RobotProfile) -> dict[str, Any]:
+    """The rates of the base a run trains over: on ``--resume``, those it started with
     (its ``derived.base_rates``; a run written before they were recorded takes today's),
-    else ``agents/tuned``'s now. Written to ``config.yml`` and read back by the evaluation
-    (:func:`train.evaluation.envs.trained_wrapper_kwargs`)."""
+    else today's of its ``base_gains`` (:func:`agents.registry.pinned_rates`: the tuned
+    file's, or the default's numeric rates). Written to ``config.yml`` and read back by the
+    evaluation (:func:`train.evaluation.envs.trained_wrapper_kwargs`)."""
     if cfg.resume:
         saved = saved_config(Path(cfg.out)) or {}
         pinned = (saved.get("derived") or {}).get("base_rates")
         if pinned:
             return dict(pinned)
-    return tuned_rates(robot, cfg.residual)
+    return pinned_rates(profile, cfg.residual, cfg.base_gains)
 
 
 #: TrainConfig's defaults, for the keys a run written before they existed lacks.

@@ -253,7 +253,7 @@ def write_run_files(res: Resolved, run_dir: Path, argv: Sequence[str] | None) ->
             "steps": res.steps,
             "n_envs": res.n_envs,
             "vec_normalize": res.normalize_kwargs,
-            # the base's tuned rates as trained over (None: default gains, or no base)
+            # the rates of the base as trained over (None: no base with rates)
             "base_rates": (
                 dict(res.residual_kwargs["base_gains"])
                 if isinstance(res.residual_kwargs.get("base_gains"), dict)
