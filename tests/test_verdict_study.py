@@ -369,3 +369,27 @@ def test_no_task_starts_no_ray():
 
     ray = pytest.importorskip("ray")
     assert list(ray_results(print, [], 2)) == [] and not ray.is_initialized()
+
+
+def test_a_recorded_runs_config_reads_back_as_its_settings() -> None:
+    """A study's ``config.yml`` holds its settings and the record of the gains it ran at
+    (``rates``); ``--config`` of it gives the same study (the record skipped), and a config
+    with a field of that name (the adversary's ``rates``) still reads it."""
+    from pathlib import Path
+
+    import yaml
+
+    from train.common.arguments import RECORD_KEYS
+    from train.studies.adversary_config import load_config as load_adversary
+    from train.studies.verdict_study import load_config
+
+    root = Path(__file__).resolve().parents[1]
+
+    assert RATES_KEY in RECORD_KEYS
+    recorded = root / "docs/results/verdict/config.yml"
+    assert RATES_KEY in yaml.safe_load(recorded.read_text())
+    cfg = load_config(recorded, [])
+    assert cfg.robots == ["two_link", "iiwa", "panda", "xarm6"] and cfg.gains == "tuned"
+    assert cfg == load_config(root / "train/configs/verdict/verdict.yml", [f"out={cfg.out}"])
+    damped = load_adversary(root / "train/configs/adversary/worst_passivity_damped_xarm6.yml", [])
+    assert damped.rates == {"passivity": {"damping_ratio": 0.5}}

@@ -310,12 +310,14 @@ def results_kind(folder: Path) -> str:
 def _report(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
     import yaml
 
+    from train.common.arguments import RECORD_KEYS
+
     if args.publish is not None and len(args.folders) != 1:
         p.error("--publish takes one results folder")
     for folder in args.folders:
         kind = results_kind(folder)  # refuses a folder without results first
         saved = yaml.safe_load((folder / "config.yml").read_text())
-        fields = {k: v for k, v in saved.items() if k != "rates"}  # the gains record
+        fields = {k: v for k, v in saved.items() if k not in RECORD_KEYS}
         if kind == "rates":
             from train.studies.rates import RatesConfig, write_report
 

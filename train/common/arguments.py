@@ -41,6 +41,11 @@ __all__ = [
 ]
 
 _RESERVED = ("config", "set")  # the dests of --config and --set
+#: Keys a run writes into its ``config.yml`` as a record beside its settings (``rates``:
+#: the gains each controller ran at, :mod:`train.evaluation.rate_record`). Read back as a
+#: ``--config``, a run's file is its settings: a record key is skipped where the config has
+#: no field of that name.
+RECORD_KEYS = frozenset({"rates"})
 _BOOL_WORDS = {"true": True, "yes": True, "on": True, "false": False, "no": False, "off": False}
 
 
@@ -346,6 +351,7 @@ def config_from_args(
             raise InvalidConfigError(f"config file {path}: {exc}") from None
         if not isinstance(loaded, dict):
             raise InvalidConfigError(f"config file {path}: expected a mapping of fields")
+        loaded = {k: v for k, v in loaded.items() if k in names or k not in RECORD_KEYS}
         if set(loaded) - set(names):
             raise _unknown(set(loaded) - set(names), names, f"in {path}")
         data.update({k: _coerce(k, hints[k], v, str(path), text=False) for k, v in loaded.items()})

@@ -35,7 +35,7 @@ from train.common.runs import (
 from train.evaluation.results import read_episodes
 
 #: The key of ``config.yml`` that holds the record.
-RATES_KEY = "rates"
+RATES_KEY = "rates"  # one of train.common.arguments.RECORD_KEYS
 #: robot → controller → rate → value.
 Record = dict[str, dict[str, dict[str, Any]]]
 
