@@ -250,7 +250,7 @@ def test_a_search_with_other_gain_rates_runs_and_replays_with_them(tmp_path) -> 
     run_search(load_config(None, cfg_args(out)), progress=False)
     entry = yaml.safe_load((out / "worst.yml").read_text())["worst"]["pd_gravity"]["impulse"]
     entry = entry["0.6"]
-    assert entry["gains"] == {"omega": 40.0}
+    assert entry["gains"] == {"zeta": 1.0, "omega": 40.0}  # the default's, its omega over them
     assert replay(out / "worst.yml", "pd_gravity", "impulse", 0.6).cost == entry["cost_rad"]
     default = replay(out / "worst.yml", "pd_gravity", "impulse", 0.6, rates={"omega": 20.0})
     assert default.cost != entry["cost_rad"]

@@ -115,3 +115,32 @@ def test_the_paper_laws_rates_are_the_ones_it_runs() -> None:
     assert effective_rates(profile, "passivity")["sync_rate"] > 0.0
     rates = effective_rates(profile, "passivity_paper")
     assert {k: rates[k] for k in passivity.PAPER_LAW} == passivity.PAPER_LAW
+
+
+@pytest.mark.parametrize("robot", ["two_link", "xarm6"])
+@pytest.mark.parametrize("name", CONTROLLER_NAMES)
+def test_the_pinned_default_rates_build_the_default_controller(name: str, robot: str) -> None:
+    """What a residual run or a default-gain search records (:func:`pinned_rates`, the
+    numeric rates of the default) builds exactly the default controller, and the tuned pin
+    is the tuned file's rates."""
+    from agents.registry import pinned_rates, tuned_rates
+
+    profile = robot_profile(robot)
+    env = gym.make(profile.env_id)
+    try:
+        pinned = pinned_rates(profile, name, "default")
+        assert pinned and all(isinstance(v, (int, float)) for v in pinned.values())
+        built, default = make_controller(name, env, pinned), make_controller(name, env)
+        assert _gains(built) == _gains(default) is not None
+    finally:
+        env.close()
+    assert pinned_rates(profile, name, "tuned") == tuned_rates(robot, name)
+
+
+def _gains(controller: Controller) -> object:
+    """A controller's absolute gains (a path-following wrapper's: its inner law's and its
+    own synchronisation rate)."""
+    inner = getattr(controller, "inner", None)
+    if inner is not None:
+        return (inner.gains, controller.window_s, controller.sync_rate_1_s)
+    return controller.gains

@@ -346,3 +346,42 @@ def test_a_search_at_gains_no_longer_shipped_is_labelled_stale(tmp_path):
     assert still_tuned("iiwa", "passivity", shipped)
     assert not still_tuned("iiwa", "passivity", {**shipped, "lam": shipped["lam"] * 2})
     assert not still_tuned("iiwa", "no_such_controller", shipped)  # no tuned file: stale
+
+
+def test_a_search_at_default_gains_since_changed_is_labelled_stale(tmp_path, monkeypatch):
+    """A default-gain search records every numeric default rate it ran (worst.yml); once the
+    default moves, it is labelled stale, and a search with rates of its own over the default
+    (a given ζ) is judged against the default with those rates."""
+    import yaml
+
+    from agents import passivity, passivity_gains
+    from agents.registry import pinned_rates
+    from ptrack_gym.robots import robot_profile
+    from train.evaluation.report import stale_search
+    from train.studies.adversary_config import load_config as load_adversary
+    from train.studies.worst_case import controller_gains
+
+    folder = search_folder(tmp_path)
+    cfg = yaml.safe_load((folder / "config.yml").read_text())
+    cfg["gains"] = "default"
+    search = load_adversary(None, ["env_id=ptrack_gym/IiwaTrack-v0", "gains=default"])
+    ran = controller_gains(search, "passivity")  # what the search runs and records
+    assert ran == pinned_rates(robot_profile("iiwa"), "passivity", "default")
+    (folder / "worst.yml").write_text(
+        yaml.safe_dump({"worst": {"passivity": {"impulse": {"2": {"gains": ran}}}}})
+    )
+    given = {**cfg, "rates": {"passivity": {"damping_ratio": 0.5}}}
+    assert not stale_search(folder, cfg) and stale_search(folder, given)
+    moved = {**passivity_gains.DEFAULT_RATES, "damping_ratio": 0.3}
+    for where in (passivity, passivity_gains):
+        monkeypatch.setattr(where, "DEFAULT_RATES", moved)
+    assert stale_search(folder, cfg)
+    (folder / "worst.yml").write_text(  # a search at the default with a ζ of its own
+        yaml.safe_dump({"worst": {"passivity": {"impulse": {"2": {"gains": {
+            **ran, "damping_ratio": 0.5}}}}}})
+    )  # fmt: skip
+    assert not stale_search(folder, given)  # its own ζ, over a default that moved elsewhere
+    (folder / "worst.yml").write_text(  # written before rates were recorded: not checkable
+        yaml.safe_dump({"worst": {"passivity": {"impulse": {"2": {"gains": "default"}}}}})
+    )
+    assert not stale_search(folder, cfg)

@@ -188,12 +188,13 @@ def aggregate(
 
 def _gains_label(cfg: dict[str, Any], folder: Path) -> str:
     """A search's gains in words: ``default``, ``tuned``, ``given``, or ``tuned earlier,
-    stale`` for a search at tuned gains whose recorded rates (``worst.yml``) are no longer
-    the shipped ones — its worst cases are of gains the comparison no longer runs."""
+    stale`` (``default earlier, stale``) for a search whose recorded rates (``worst.yml``)
+    are no longer the shipped tuned (default) ones — its worst cases are of gains the
+    comparison no longer runs."""
     gains = cfg.get("gains", "default")
     if not isinstance(gains, str):
         return "given"
-    return "tuned earlier, stale" if gains == "tuned" and stale_tuned_search(folder, cfg) else gains
+    return f"{gains} earlier, stale" if stale_search(folder, cfg) else gains
 
 
 def _search_label(cfg: dict[str, Any], gains: str) -> str:
@@ -202,21 +203,30 @@ def _search_label(cfg: dict[str, Any], gains: str) -> str:
     return f"{cfg['env_id'].split('/')[-1].replace('Track-v0', '')} ({gains})"
 
 
-def stale_tuned_search(folder: Path, cfg: dict[str, Any]) -> bool:
-    """Whether a search at tuned gains ran any controller at rates other than those now in
-    ``agents/tuned`` (read from its ``worst.yml``; a controller no longer tuned is stale)."""
+def stale_search(folder: Path, cfg: dict[str, Any]) -> bool:
+    """Whether a search at tuned or default gains ran any controller at rates other than
+    those it would run today — its ``worst.yml`` cells record them: the tuned file's or the
+    default's (:func:`agents.registry.pinned_rates`), with the config's ``rates`` for that
+    controller over them. A controller no longer tuned is stale; a cell that records only
+    the word (written before rates were recorded) cannot be checked and is not called stale."""
     import yaml
 
-    from agents.registry import still_tuned
+    from agents.registry import GAIN_CHOICES, pinned_rates
+    from ptrack_gym.errors import InvalidConfigError
     from ptrack_gym.robots import profile_for_env_id
 
-    worst = folder / "worst.yml"
-    if not worst.exists():
+    worst, gains = folder / "worst.yml", cfg.get("gains", "default")
+    if not worst.exists() or gains not in GAIN_CHOICES:
         return False
-    robot = profile_for_env_id(cfg["env_id"]).name
+    profile = profile_for_env_id(cfg["env_id"])
     for controller, families in (yaml.safe_load(worst.read_text()).get("worst") or {}).items():
         used = [cell.get("gains") for levels in families.values() for cell in levels.values()]
-        if any(isinstance(g, dict) and not still_tuned(robot, controller, g) for g in used):
+        try:
+            today = pinned_rates(profile, controller, gains)
+        except InvalidConfigError:  # no tuned gains any more
+            return any(isinstance(g, dict) for g in used)
+        today.update((cfg.get("rates") or {}).get(controller) or {})
+        if any(isinstance(g, dict) and g != today for g in used):
             return True
     return False
 

@@ -17,7 +17,7 @@ import yaml
 
 import ptrack_gym  # noqa: F401  (registers the envs)
 from agents.policy import ControllerPolicy
-from agents.registry import make_controller, tuned_rates
+from agents.registry import GAIN_CHOICES, make_controller, pinned_rates
 from ptrack_gym.metrics import EpisodeRecord
 from ptrack_gym.paths import ReferencePath
 from ptrack_gym.robots import profile_for_env_id
@@ -251,12 +251,13 @@ def evaluate_task(args: tuple[Any, ...]) -> Outcome:
 
 
 def controller_gains(cfg: AdversaryConfig, controller: str) -> str | dict[str, Any]:
-    """The gains argument of ``controller``'s episodes: "default", or the tuned gain rates
-    themselves (recorded in ``worst.yml``, so a replay does not depend on a later tuning),
-    with the config's ``rates`` for it over them."""
+    """The gains argument of ``controller``'s episodes: the rates of the config's gains
+    themselves (:func:`agents.registry.pinned_rates`: the tuned file's, or every numeric rate
+    of the default), recorded in ``worst.yml`` so that a replay does not depend on a later
+    tuning or a new default, with the config's ``rates`` for it over them."""
     gains: str | dict[str, Any] = cfg.gains
-    if cfg.gains == "tuned":
-        gains = tuned_rates(profile_for_env_id(cfg.env_id).name, controller)
+    if cfg.gains in GAIN_CHOICES:
+        gains = pinned_rates(profile_for_env_id(cfg.env_id), controller, cfg.gains)
     given = cfg.rates.get(controller)
     if given:
         gains = {**(gains if isinstance(gains, dict) else {}), **given}
