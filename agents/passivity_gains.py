@@ -53,7 +53,7 @@ DEFAULT_RATES: dict[str, Any] = {
     "sync_ratio": 0.5,
     "saturation_aware": True,
     "zoh_damping": 1.0,
-    "damping_ratio": 0.0,
+    "damping_ratio": 0.7,
 }
 #: The rates one gain scale multiplies (``train.studies.fronts``): the joint and the
 #: phase spring bandwidths (the damping rates ρ, λ stay).
