@@ -169,19 +169,17 @@ def still_tuned(robot: str, controller: str, rates: Mapping[str, Any]) -> bool:
 
 
 def pinned_rates(profile: RobotProfile, name: str, gains: str) -> dict[str, float]:
-    """The rates a residual run pins for its base ``name`` on the robot of ``profile`` with
-    ``gains`` ("tuned": the tuned file's rates; "default": every numeric rate of
-    :func:`effective_rates` — the gains, not choices such as ``pump``), so a later retune
-    or a new default cannot move the base the residual learned to correct.
+    """The rates a residual run or a search pins for ``name`` on the robot of ``profile``
+    with ``gains`` ("default" or "tuned"): every numeric rate of :func:`effective_rates`
+    (the gains, not choices such as ``pump``) — a tuned file's rates *and* the defaults of
+    the rates it does not name — so neither a retune nor a new default can move them.
 
     Raises:
         InvalidConfigError: an unknown controller or gain choice, or no tuned gains.
     """
-    if check_gain_choice(gains) == "tuned":
-        return tuned_rates(profile.name, name)
     return {
         key: value
-        for key, value in effective_rates(profile, name, "default").items()
+        for key, value in effective_rates(profile, name, check_gain_choice(gains)).items()
         if isinstance(value, (int, float)) and not isinstance(value, bool)
     }
 
@@ -189,10 +187,12 @@ def pinned_rates(profile: RobotProfile, name: str, gains: str) -> dict[str, floa
 def still_pinned(profile: RobotProfile, name: str, gains: str, rates: Mapping[str, Any]) -> bool:
     """Whether ``rates`` — pinned by :func:`pinned_rates` with ``gains`` when a run trained —
     are still what ``name`` runs today with those gains (``False`` where the pair has no
-    tuned gains any more)."""
-    if check_gain_choice(gains) == "tuned":
-        return still_tuned(profile.name, name, rates)
-    return dict(rates) == pinned_rates(profile, name, "default")
+    tuned gains any more, or where a pin written before pins were complete — a tuned
+    file's rates alone — leaves a rate to a default)."""
+    try:
+        return dict(rates) == pinned_rates(profile, name, gains)
+    except InvalidConfigError:
+        return False
 
 
 def effective_rates(

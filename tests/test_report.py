@@ -324,7 +324,8 @@ def test_a_search_at_gains_no_longer_shipped_is_labelled_stale(tmp_path):
     recorded rates (worst.yml) are the ones in agents/tuned."""
     import yaml
 
-    from agents.registry import still_tuned, tuned_rates
+    from agents.registry import pinned_rates, still_tuned, tuned_rates
+    from ptrack_gym.robots import robot_profile
 
     folder = search_folder(tmp_path)
     pd.DataFrame([SEARCH_ROW]).to_csv(folder / "summary.csv", index=False)
@@ -335,7 +336,9 @@ def test_a_search_at_gains_no_longer_shipped_is_labelled_stale(tmp_path):
             yaml.safe_dump({"worst": {"passivity": {"impulse": {"2": cell}}}})
         )
 
-    shipped = tuned_rates("iiwa", "passivity")
+    shipped = pinned_rates(robot_profile("iiwa"), "passivity", "tuned")  # what it records
+    record(tuned_rates("iiwa", "passivity"))  # written before pins were complete: stale
+    assert "| Iiwa (tuned earlier, stale) | passivity |" in worst_case_section([folder])
     record(shipped)
     assert "| Iiwa (tuned) | passivity |" in worst_case_section([folder])
     record({**shipped, "lam": shipped["lam"] * 2})
@@ -343,9 +346,10 @@ def test_a_search_at_gains_no_longer_shipped_is_labelled_stale(tmp_path):
     assert "| Iiwa (tuned earlier, stale) | passivity |" in text
     assert "gains tuned earlier, stale" in text
     assert "Iiwa (tuned earlier, stale), impulse 2 J" in worst_case_sentence([folder])
-    assert still_tuned("iiwa", "passivity", shipped)
-    assert not still_tuned("iiwa", "passivity", {**shipped, "lam": shipped["lam"] * 2})
-    assert not still_tuned("iiwa", "no_such_controller", shipped)  # no tuned file: stale
+    file = tuned_rates("iiwa", "passivity")
+    assert still_tuned("iiwa", "passivity", file)
+    assert not still_tuned("iiwa", "passivity", {**file, "lam": file["lam"] * 2})
+    assert not still_tuned("iiwa", "no_such_controller", file)  # no tuned file: stale
 
 
 def test_a_search_at_default_gains_since_changed_is_labelled_stale(tmp_path, monkeypatch):

@@ -435,14 +435,17 @@ def test_kernel_reward_options_reach_the_training_env(tmp_path: Path) -> None:
 
 def test_tuned_base_gains_reach_the_training_env(tmp_path: Path) -> None:
     """--base-gains tuned: the residual corrects the base with agents/tuned's gains."""
-    from agents.registry import make_controller, tuned_rates
+    from agents.registry import make_controller, pinned_rates
+    from ptrack_gym.robots import robot_profile
     from train.rl.run import _env_factory
 
     res = validate(
         parse_args(argv(tmp_path / "t", "sac", "passivity", 100, "--base-gains", "tuned"))
     )
-    # pinned: the rates themselves, so a later retune of agents/tuned cannot move the base
-    assert res.residual_kwargs["base_gains"] == tuned_rates("two_link", "passivity")
+    # pinned: the rates themselves (the tuned file's and the defaults it does not name), so
+    # neither a later retune of agents/tuned nor a new default can move the base
+    pinned = pinned_rates(robot_profile("two_link"), "passivity", "tuned")
+    assert res.residual_kwargs["base_gains"] == pinned
     env = _env_factory(res, "none")()
     try:
         assert env.controller.gains == make_controller("passivity", env, "tuned").gains
@@ -453,7 +456,8 @@ def test_tuned_base_gains_reach_the_training_env(tmp_path: Path) -> None:
 def test_a_run_pins_its_tuned_base_and_is_evaluated_and_resumed_over_it(tmp_path: Path) -> None:
     """config.yml records the tuned rates the base ran (derived.base_rates); the evaluation
     and a --resume use them, not agents/tuned's of the day."""
-    from agents.registry import tuned_rates
+    from agents.registry import pinned_rates
+    from ptrack_gym.robots import robot_profile
     from train.evaluation.envs import trained_wrapper_kwargs
     from train.rl.run import write_run_files
 
@@ -461,7 +465,9 @@ def test_a_run_pins_its_tuned_base_and_is_evaluated_and_resumed_over_it(tmp_path
     res = validate(parse_args(argv(out, "sac", "passivity", 100, "--base-gains", "tuned")))
     write_run_files(res, out, None)
     saved = yaml.safe_load((out / "config.yml").read_text())
-    assert saved["derived"]["base_rates"] == tuned_rates("two_link", "passivity")
+    assert saved["derived"]["base_rates"] == pinned_rates(
+        robot_profile("two_link"), "passivity", "tuned"
+    )
     # the day agents/tuned is retuned: the run keeps the rates it trained over
     older = {**saved["derived"]["base_rates"], "omega": 7.5}
     saved["derived"]["base_rates"] = older
