@@ -249,11 +249,12 @@ def test_phase_loop_explains_the_250_hz_divergence_and_the_default_holds() -> No
 
 
 def test_velocity_turning_explains_the_panda_at_250_hz() -> None:
-    """Panda, default gains, random path 7005, 250 Hz: τ_r⁰ turns the velocity at up to
-    ~235 rad/s on the slow stretches; held from the sample the turning grows ρ ≥ 1.2 per
-    step and the path distance grows tenfold; held at the midpoint ρ ≤ 1."""
+    """Panda, default rates without the joint damper (ζ = 0), random path 7005, 250 Hz:
+    τ_r⁰ turns the velocity at up to ~235 rad/s on the slow stretches; held from the sample
+    the turning grows ρ ≥ 1.2 per step and the path distance grows tenfold; held at the
+    midpoint ρ ≤ 1. (The default ζ = 0.7 damps it too: 1.5e-4 against 1.3e-4 rad.)"""
     env, ctx, tables = _context("panda", 250.0, 7005)
-    gains = passivity.gains_from_rates(ctx, None, tables)
+    gains = passivity.gains_from_rates(ctx, {"damping_ratio": 0.0}, tables)
     _, omega_v = sampling.turning_matrices(tables, ctx.model, gains)
     assert omega_v.max() > 150.0
     assert sampling.turning_growth(tables, ctx.model, gains, ctx.dt_s, "sample").max() > 1.2
@@ -382,8 +383,10 @@ def test_time_indexed_gains_keep_their_coupled_modes_inside_the_sample_limits(na
 #: The iiwa passivity rates of the one-seed tuning study (2026-11-23), at which the nominal
 #: model's acceleration prediction is biased by a payload; the fight's rates (agents/tuned
 #: since 2026-11-26: slower σ dynamics, λ 4.2) show no such bias, all holds within 1 %.
+#: A 4-rate tuning: no joint damper (ζ = 0).
 BIASED_RATES = {"omega": 31.387322090421033, "omega_s": 77.23075435532087,
-                "rho": 26.067742708338685, "lam": 9.94434702490342}  # fmt: skip
+                "rho": 26.067742708338685, "lam": 9.94434702490342,
+                "damping_ratio": 0.0}  # fmt: skip
 
 
 def test_the_hold_is_not_biased_by_a_payload_the_model_does_not_know() -> None:

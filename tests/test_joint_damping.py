@@ -1,6 +1,6 @@
 """The passivity law's joint springs: their modes (``agents.gains.spring_modes``), the
-paper's law leaving them undamped, and the opt-in damping ratio ``damping_ratio`` that
-damps them (``agents.passivity_gains.add_joint_damping``) — checked on the modes, at the
+paper's law leaving them undamped, and the damping ratio ``damping_ratio`` (0.7 by default)
+that damps them (``agents.passivity_gains.add_joint_damping``) — checked on the modes, at the
 control-rate limits, and on the closed loop under a periodic torque at a mode."""
 
 from __future__ import annotations
@@ -17,6 +17,8 @@ from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import robot_profile
 
 ROBOTS = ("two_link", "iiwa", "panda", "xarm6")
+#: ζ = 0: the law's springs with only the zero-order-hold damper D = c K dt.
+UNDAMPED = {"damping_ratio": 0.0}
 
 
 class _Diagonal:
@@ -50,15 +52,15 @@ def _controller(robot: str, hz: float, rates=None):
 def test_the_papers_law_leaves_its_springs_undamped(robot) -> None:
     """The paper's law (``passivity_paper``) has no damper: its spring modes
     M ë + K e = 0 only oscillate, undamped, so a periodic torque at one of them meets no
-    joint-space damping at all (Ė = −R s̃̇²); the default's damper D = K dt leaves them at
-    ζ ≤ 0.11."""
+    joint-space damping at all (Ė = −R s̃̇²); the hold's damper D = K dt alone (ζ = 0)
+    leaves them at ζ ≤ 0.11."""
     env = gym.make(robot_profile(robot).env_id, control_hz=1000.0)
     paper = make_controller("passivity_paper", env)
     q = paper.tables.q_samples()[::8]
     freq, ratio = spring_modes(paper.model, q, paper.k_diag, paper.d_diag)
     assert np.all(paper.d_diag == 0.0) and np.abs(ratio).max() < 1e-9 and freq.min() > 0.0
-    default = _controller(robot, 1000.0)
-    _, light = spring_modes(default.model, q, default.k_diag, default.d_diag)
+    hold = _controller(robot, 1000.0, UNDAMPED)
+    _, light = spring_modes(hold.model, q, hold.k_diag, hold.d_diag)
     assert 0.0 < light.min() and light.max() < 0.11
 
 
@@ -67,10 +69,11 @@ def test_the_papers_law_leaves_its_springs_undamped(robot) -> None:
 def test_a_damping_ratio_damps_every_spring_mode_within_the_rate_limit(robot, hz) -> None:
     """With ``damping_ratio`` ζ = 0.3 every mode of the coupled arm's springs and dampers,
     over the whole path, has a damping ratio ≥ ζ/2 (the per-joint design reads diag M at
-    home; the coupling costs the rest), where the default's lightest is ≤ 0.05; the gains
-    still pass the control-rate check at ``hz`` (the rate caps rerun with the damper)."""
+    home; the coupling costs the rest), where ζ = 0 leaves the lightest ≤ 0.05; the gains
+    still pass the control-rate check at ``hz`` (the rate caps rerun with the damper). The
+    default (ζ = 0.7) damps every mode at least as well as ζ = 0.3."""
     zeta = 0.3
-    default = _controller(robot, hz)
+    default = _controller(robot, hz, UNDAMPED)
     damped = _controller(robot, hz, {"damping_ratio": zeta})  # raises if the rate fails
     q = damped.tables.q_samples()
     _, light = spring_modes(default.model, q, default.k_diag, default.d_diag)
@@ -79,6 +82,9 @@ def test_a_damping_ratio_damps_every_spring_mode_within_the_rate_limit(robot, hz
     assert ratio.min() >= zeta / 2
     assert np.all(damped.d_diag > default.d_diag)
     assert damped.max_period_s() >= 1.0 / hz
+    shipped = _controller(robot, hz)  # raises if the default fails the rate
+    _, shipped_ratio = spring_modes(shipped.model, q, shipped.k_diag, shipped.d_diag)
+    assert shipped_ratio.min() >= ratio.min()
 
 
 @pytest.mark.parametrize("zeta", [-0.1, float("nan"), float("inf"), "abc", None, True])
@@ -120,15 +126,17 @@ def _path_error(freq_hz: float, rates=None) -> float:
 
 
 def test_a_periodic_torque_near_a_spring_mode_resonates_and_the_damper_cuts_it() -> None:
-    """The two-link's fastest spring mode (median over the path 5.9 Hz at the default gains,
-    4.4–7.3 Hz along it, ζ ≈ 0.02): a sine torque at 5.9 Hz moves the arm off its path more
-    than at half or twice that frequency (a sweep peaks near 7.5 Hz, inside the mode's
-    range: the frozen-configuration modes locate the resonance to that range, not to a
-    point), and ζ = 0.5 cuts the error at 5.9 Hz at least 3× (measured 4×)."""
-    ctrl = _controller("two_link", 1000.0)
+    """The two-link's fastest spring mode at ζ = 0 (median over the path 5.9 Hz at the
+    default rates, 4.4–7.3 Hz along it, ζ ≈ 0.02): a sine torque at 5.9 Hz moves the arm
+    off its path more than at half or twice that frequency (a sweep peaks near 7.5 Hz,
+    inside the mode's range: the frozen-configuration modes locate the resonance to that
+    range, not to a point), and ζ = 0.5 cuts the error at 5.9 Hz at least 3× (measured 4×),
+    as the default ζ does."""
+    ctrl = _controller("two_link", 1000.0, UNDAMPED)
     freq, _ = spring_modes(ctrl.model, ctrl.tables.q_samples(), ctrl.k_diag, ctrl.d_diag)
     f_mode = float(np.median(freq.max(axis=1))) / (2.0 * np.pi)
-    at_mode = _path_error(f_mode)
-    assert at_mode > _path_error(0.5 * f_mode)
-    assert at_mode > _path_error(2.0 * f_mode)
+    at_mode = _path_error(f_mode, UNDAMPED)
+    assert at_mode > _path_error(0.5 * f_mode, UNDAMPED)
+    assert at_mode > _path_error(2.0 * f_mode, UNDAMPED)
     assert _path_error(f_mode, {"damping_ratio": 0.5}) < at_mode / 3.0
+    assert _path_error(f_mode) < at_mode / 3.0

@@ -501,7 +501,8 @@ def test_a_run_over_default_gains_pins_them(tmp_path: Path, monkeypatch) -> None
     assert "omega" in pinned and "pump" not in pinned  # the gains, not the law's choices
     assert still_pinned(profile, "passivity", "default", pinned)
     # the default moves
-    moved = {**passivity_gains.DEFAULT_RATES, "damping_ratio": 0.7, "omega": 9.0}
+    now = passivity_gains.DEFAULT_RATES
+    moved = {**now, "damping_ratio": now["damping_ratio"] + 0.25, "omega": 9.0}
     for where in (passivity, passivity_gains):  # the law's module re-exports the gains'
         monkeypatch.setattr(where, "DEFAULT_RATES", moved)
     assert not still_pinned(profile, "passivity", "default", pinned)
