@@ -8,7 +8,7 @@ row per episode (path distance RMS and max, rad; failed: the path distance passe
 
     python bench/damping_ratio_study.py --out docs/results/zeta_default/episodes.csv
 
-About 6 min on one core. Results and the choice they led to (ζ = 0.7): docs/experiments.md
+About 10 min on one core. Results and the choice they led to (ζ = 0.7): docs/experiments.md
 (#default-damping-ratio).
 """
 
