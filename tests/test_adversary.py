@@ -355,3 +355,22 @@ def dataclass_dict(cfg: AdversaryConfig) -> dict:
     import dataclasses
 
     return dataclasses.asdict(cfg)
+
+
+def test_a_committed_worst_case_replays_at_the_rates_it_records() -> None:
+    """A published default-gain search records the rates its episodes ran (every numeric
+    default rate), and its worst case replays from them bit for bit — whatever the default
+    is today."""
+    from pathlib import Path
+
+    from agents.registry import effective_rates
+    from ptrack_gym.robots import robot_profile
+    from train.studies.worst_case import replay
+
+    worst = Path(__file__).resolve().parents[1] / "docs/results/worst_passivity_default_two_link"
+    data = yaml.safe_load((worst / "worst.yml").read_text())["worst"]["passivity"]["impulse"]
+    ((energy, cell),) = data.items()
+    known = effective_rates(robot_profile("two_link"), "passivity")
+    assert isinstance(cell["gains"], dict) and set(cell["gains"]) < set(known)
+    outcome = replay(worst / "worst.yml", "passivity", "impulse", float(energy))
+    assert outcome.cost == cell["cost_rad"] and outcome.unstable == cell["unstable"]

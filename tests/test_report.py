@@ -389,3 +389,6 @@ def test_a_search_at_default_gains_since_changed_is_labelled_stale(tmp_path, mon
         yaml.safe_dump({"worst": {"passivity": {"impulse": {"2": {"gains": "default"}}}}})
     )
     assert not stale_search(folder, cfg)
+    pd.DataFrame([SEARCH_ROW]).to_csv(folder / "summary.csv", index=False)
+    (folder / "config.yml").write_text(yaml.safe_dump(cfg))
+    assert "| Iiwa (default, rates unrecorded) | passivity |" in worst_case_section([folder])

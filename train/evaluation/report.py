@@ -194,7 +194,9 @@ def _gains_label(cfg: dict[str, Any], folder: Path) -> str:
     gains = cfg.get("gains", "default")
     if not isinstance(gains, str):
         return "given"
-    return f"{gains} earlier, stale" if stale_search(folder, cfg) else gains
+    if stale_search(folder, cfg):
+        return f"{gains} earlier, stale"
+    return f"{gains}, rates unrecorded" if _recorded_gains(folder) & GAIN_WORDS else gains
 
 
 def _search_label(cfg: dict[str, Any], gains: str) -> str:
@@ -203,12 +205,33 @@ def _search_label(cfg: dict[str, Any], gains: str) -> str:
     return f"{cfg['env_id'].split('/')[-1].replace('Track-v0', '')} ({gains})"
 
 
+#: The gains a search's worst.yml cell records as a word, before cells recorded the rates.
+GAIN_WORDS = frozenset({"default", "tuned"})
+
+
+def _recorded_gains(folder: Path) -> set[str]:
+    """The gains words among the cells of a search's ``worst.yml`` (empty if none)."""
+    import yaml
+
+    worst = folder / "worst.yml"
+    if not worst.exists():
+        return set()
+    cells = [
+        cell.get("gains")
+        for families in (yaml.safe_load(worst.read_text()).get("worst") or {}).values()
+        for levels in families.values()
+        for cell in levels.values()
+    ]
+    return {g for g in cells if isinstance(g, str)}
+
+
 def stale_search(folder: Path, cfg: dict[str, Any]) -> bool:
     """Whether a search at tuned or default gains ran any controller at rates other than
     those it would run today — its ``worst.yml`` cells record them: the tuned file's or the
     default's (:func:`agents.registry.pinned_rates`), with the config's ``rates`` for that
     controller over them. A controller no longer tuned is stale; a cell that records only
-    the word (written before rates were recorded) cannot be checked and is not called stale."""
+    the word (written before rates were recorded) cannot be checked and is not called stale
+    (:func:`_gains_label` says "rates unrecorded")."""
     import yaml
 
     from agents.registry import GAIN_CHOICES, pinned_rates
@@ -224,7 +247,9 @@ def stale_search(folder: Path, cfg: dict[str, Any]) -> bool:
         try:
             today = pinned_rates(profile, controller, gains)
         except InvalidConfigError:  # no tuned gains any more
-            return any(isinstance(g, dict) for g in used)
+            if any(isinstance(g, dict) for g in used):
+                return True
+            continue
         today.update((cfg.get("rates") or {}).get(controller) or {})
         if any(isinstance(g, dict) and g != today for g in used):
             return True
