@@ -25,6 +25,7 @@ from typing import Any
 
 import pandas as pd
 
+from agents.registry import still_pinned
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import ROBOTS
 from train.common.paired_tests import TooFewPairsError, paired_comparisons
@@ -38,6 +39,13 @@ def _run_config(name: str) -> dict[str, Any]:
     from train.evaluation.policies import run_config, sb3_files
 
     return dict(run_config(sb3_files(name)[0])["config"])
+
+
+def _base_rates(name: str) -> dict[str, Any] | None:
+    """The rates a residual run pinned for its base (``derived.base_rates``), if any."""
+    from train.evaluation.policies import run_config, sb3_files
+
+    return (run_config(sb3_files(name)[0]).get("derived") or {}).get("base_rates")
 
 
 def entrant_reference(name: str) -> str:
@@ -93,6 +101,13 @@ def check_entrants(
                 raise InvalidConfigError(
                     f"{name}'s {what} with {own} gains, the verdict's controllers with "
                     f"{gains}: compare an entrant with the controller it was built on"
+                )
+            pinned = _base_rates(name) if c["residual"] not in ("none", "network") else None
+            if pinned and not still_pinned(ROBOTS[robot], c["residual"], gains, pinned):
+                raise InvalidConfigError(
+                    f"{name}'s base ran at {gains} rates since changed ({pinned}); the "
+                    f"verdict's {c['residual']} runs today's: compare an entrant with the "
+                    "controller it was built on"
                 )
             reference = entrant_reference(name)
             if reference not in controllers:
