@@ -7,8 +7,8 @@ file's or the given ones). :func:`check_resume` compares a saved record with tod
 changed pair is refused by name, or — ``rerun_changed`` — its rows are dropped from the
 results file so that the resume runs them again, every other row kept. Learned entrants
 (``sb3:<run folder>``) have no rates here and their rows are never dropped (a residual
-pins its base's tuned rates in its own ``config.yml`` since that was recorded; an older run
-takes today's).
+pins every numeric rate of its base in its own ``config.yml``, ``derived.base_rates``; an
+older run takes today's, with a warning: :func:`train.evaluation.envs.trained_wrapper_kwargs`).
 """
 
 from __future__ import annotations
