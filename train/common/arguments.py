@@ -45,7 +45,8 @@ _RESERVED = ("config", "set")  # the dests of --config and --set
 #: the gains each controller ran at, :mod:`train.evaluation.rate_record`; ``ran_at``: those
 #: of an adversarial search's controllers). Read back as a ``--config``, a run's file is its
 #: settings: a record key is skipped where the config has no field of that name.
-RECORD_KEYS = frozenset({"rates", "ran_at"})
+RATES_KEY, RAN_AT_KEY = "rates", "ran_at"
+RECORD_KEYS = frozenset({RATES_KEY, RAN_AT_KEY})
 _BOOL_WORDS = {"true": True, "yes": True, "on": True, "false": False, "no": False, "off": False}
 
 

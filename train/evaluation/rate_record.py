@@ -24,6 +24,7 @@ import yaml
 from agents.registry import CONTROLLER_NAMES, effective_rates
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import ROBOTS
+from train.common.arguments import RATES_KEY  # the key of config.yml that holds the record
 from train.common.runs import (
     CONFIG_FILE,
     RunFolder,
@@ -34,8 +35,6 @@ from train.common.runs import (
 )
 from train.evaluation.results import read_episodes
 
-#: The key of ``config.yml`` that holds the record.
-RATES_KEY = "rates"  # one of train.common.arguments.RECORD_KEYS
 #: robot → controller → rate → value.
 Record = dict[str, dict[str, dict[str, Any]]]
 

@@ -196,7 +196,8 @@ def _gains_label(cfg: dict[str, Any], folder: Path) -> str:
         return "given"
     if stale_search(folder, cfg):
         return f"{gains} earlier, stale"
-    return f"{gains}, rates unrecorded" if _recorded_gains(folder) & GAIN_WORDS else gains
+    words = {g for used in _cell_gains(folder).values() for g in used if isinstance(g, str)}
+    return f"{gains}, rates unrecorded" if words & GAIN_WORDS else gains
 
 
 def _search_label(cfg: dict[str, Any], gains: str) -> str:
@@ -209,20 +210,18 @@ def _search_label(cfg: dict[str, Any], gains: str) -> str:
 GAIN_WORDS = frozenset({"default", "tuned"})
 
 
-def _recorded_gains(folder: Path) -> set[str]:
-    """The gains words among the cells of a search's ``worst.yml`` (empty if none)."""
+def _cell_gains(folder: Path) -> dict[str, list[Any]]:
+    """controller → the gains every cell of a search's ``worst.yml`` records (a word, or the
+    rates; empty without the file)."""
     import yaml
 
     worst = folder / "worst.yml"
     if not worst.exists():
-        return set()
-    cells = [
-        cell.get("gains")
-        for families in (yaml.safe_load(worst.read_text()).get("worst") or {}).values()
-        for levels in families.values()
-        for cell in levels.values()
-    ]
-    return {g for g in cells if isinstance(g, str)}
+        return {}
+    return {
+        controller: [cell.get("gains") for levels in families.values() for cell in levels.values()]
+        for controller, families in (yaml.safe_load(worst.read_text()).get("worst") or {}).items()
+    }
 
 
 def stale_search(folder: Path, cfg: dict[str, Any]) -> bool:
@@ -232,18 +231,15 @@ def stale_search(folder: Path, cfg: dict[str, Any]) -> bool:
     controller over them. A controller no longer tuned is stale; a cell that records only
     the word (written before rates were recorded) cannot be checked and is not called stale
     (:func:`_gains_label` says "rates unrecorded")."""
-    import yaml
-
     from agents.registry import GAIN_CHOICES, pinned_rates
     from ptrack_gym.errors import InvalidConfigError
     from ptrack_gym.robots import profile_for_env_id
 
-    worst, gains = folder / "worst.yml", cfg.get("gains", "default")
-    if not worst.exists() or gains not in GAIN_CHOICES:
+    gains = cfg.get("gains", "default")
+    if gains not in GAIN_CHOICES:
         return False
     profile = profile_for_env_id(cfg["env_id"])
-    for controller, families in (yaml.safe_load(worst.read_text()).get("worst") or {}).items():
-        used = [cell.get("gains") for levels in families.values() for cell in levels.values()]
+    for controller, used in _cell_gains(folder).items():
         try:
             today = pinned_rates(profile, controller, gains)
         except InvalidConfigError:  # no tuned gains any more

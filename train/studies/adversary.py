@@ -50,9 +50,10 @@ import yaml
 
 import ptrack_gym  # noqa: F401  (registers the envs)
 from ptrack_gym.errors import InvalidConfigError
+from train.common.arguments import RAN_AT_KEY
 from train.common.runs import open_run, worker_count, worker_pool
 from train.plots.studies import adversary_plot
-from train.studies.adversary_config import FAMILIES, RAN_AT_KEY, AdversaryConfig, load_config
+from train.studies.adversary_config import FAMILIES, AdversaryConfig, load_config
 from train.studies.periodic_scan import SCAN_STREAM, run_scan
 from train.studies.worst_case import (
     Outcome,

@@ -244,16 +244,12 @@ class AdversaryConfig:
         profile_for_env_id(self.env_id)  # a known robot (its links: worst_case.check_targets)
 
 
-#: The key of a search's ``config.yml`` that records the rates each controller's episodes
-#: ran (``train.studies.worst_case.controller_gains``): a resume at other rates is refused.
-RAN_AT_KEY = "ran_at"
-
-
 def saved_config(saved: dict[str, Any]) -> AdversaryConfig:
     """The config of a search's ``config.yml``, that of a search before issue 38 included:
     it had one sampler ``seed`` and searched the box (``space`` "box"); one without
     ``polish_budget`` ran no local run."""
-    saved = {k: v for k, v in saved.items() if k != RAN_AT_KEY}  # a record, not a setting
+    # ``ran_at``: the rates each controller's episodes ran (a record, not a setting)
+    saved = {k: v for k, v in saved.items() if k != arguments.RAN_AT_KEY}
     if "seed" in saved:
         saved["search_seeds"] = [int(saved.pop("seed"))]
     saved.setdefault("space", "box")

@@ -35,17 +35,15 @@ from train.evaluation.verdict import BOTH_METRICS, condition_name, words
 PURE_REFERENCE = "pd_gravity"
 
 
+def _run(name: str) -> dict[str, Any]:
+    """The whole ``config.yml`` of entrant ``name`` (``config``, ``derived``, ...)."""
+    from train.evaluation.policies import run_config, sb3_files
+
+    return dict(run_config(sb3_files(name)[0]))
+
+
 def _run_config(name: str) -> dict[str, Any]:
-    from train.evaluation.policies import run_config, sb3_files
-
-    return dict(run_config(sb3_files(name)[0])["config"])
-
-
-def _base_rates(name: str) -> dict[str, Any] | None:
-    """The rates a residual run pinned for its base (``derived.base_rates``), if any."""
-    from train.evaluation.policies import run_config, sb3_files
-
-    return (run_config(sb3_files(name)[0]).get("derived") or {}).get("base_rates")
+    return dict(_run(name)["config"])
 
 
 def entrant_reference(name: str) -> str:
@@ -102,7 +100,8 @@ def check_entrants(
                     f"{name}'s {what} with {own} gains, the verdict's controllers with "
                     f"{gains}: compare an entrant with the controller it was built on"
                 )
-            pinned = _base_rates(name) if c["residual"] not in ("none", "network") else None
+            residual = c["residual"] not in ("none", "network")
+            pinned = (_run(name).get("derived") or {}).get("base_rates") if residual else None
             if pinned and not still_pinned(ROBOTS[robot], c["residual"], gains, pinned):
                 raise InvalidConfigError(
                     f"{name}'s base ran at {gains} rates since changed ({pinned}); the "
