@@ -159,15 +159,6 @@ def tuned_rates(robot: str, controller: str) -> dict[str, Any]:
     return dict(yaml.safe_load(path.read_text())["rates"])
 
 
-def still_tuned(robot: str, controller: str, rates: Mapping[str, Any]) -> bool:
-    """Whether ``rates`` — recorded when a run used ``controller``'s tuned gains on ``robot``
-    (a residual's pinned base, a search's worst cell) — are still those in ``agents/tuned``;
-    ``False`` where the pair has no tuned gains any more. A result whose recorded rates are
-    not is stale: it ran at gains the shipped ones have since replaced."""
-    path = TUNED_DIR / f"{robot}-{controller}.yml"
-    return path.exists() and dict(rates) == tuned_rates(robot, controller)
-
-
 def pinned_rates(profile: RobotProfile, name: str, gains: str) -> dict[str, float]:
     """The rates a residual run or a search pins for ``name`` on the robot of ``profile``
     with ``gains`` ("default" or "tuned"): every numeric rate of :func:`effective_rates`

@@ -261,8 +261,10 @@ def test_a_search_with_other_gain_rates_runs_and_replays_with_them(tmp_path) -> 
     with pytest.raises(InvalidConfigError, match="different settings"):
         run_search(load_config(None, other), resume=True, progress=False)
     saved = yaml.safe_load((out / "config.yml").read_text())
-    del saved["rates"]
-    (out / "config.yml").write_text(yaml.safe_dump(saved))
+    assert saved["ran_at"] == {"pd_gravity": entry["gains"]}  # the rates its trials ran
+    # ptrack adversary --config <search>/config.yml reads the record back as no setting
+    assert load_config(out / "config.yml", []) == load_config(None, cfg_args(out))
+    (out / "config.yml").write_text(yaml.safe_dump({**saved, "rates": None}))
     with pytest.raises(InvalidConfigError, match="different settings"):
         run_search(load_config(None, cfg_args(out)), resume=True, progress=False)
 
@@ -355,3 +357,37 @@ def dataclass_dict(cfg: AdversaryConfig) -> dict:
     import dataclasses
 
     return dataclasses.asdict(cfg)
+
+
+def test_a_committed_worst_case_replays_at_the_rates_it_records() -> None:
+    """A published default-gain search records the rates its episodes ran (every numeric
+    default rate), and its worst case replays from them bit for bit — whatever the default
+    is today."""
+    from pathlib import Path
+
+    from agents.registry import effective_rates
+    from ptrack_gym.robots import robot_profile
+    from train.studies.worst_case import replay
+
+    worst = Path(__file__).resolve().parents[1] / "docs/results/worst_passivity_default_two_link"
+    data = yaml.safe_load((worst / "worst.yml").read_text())["worst"]["passivity"]["impulse"]
+    ((energy, cell),) = data.items()
+    known = effective_rates(robot_profile("two_link"), "passivity")
+    assert isinstance(cell["gains"], dict) and set(cell["gains"]) < set(known)
+    outcome = replay(worst / "worst.yml", "passivity", "impulse", float(energy))
+    assert outcome.cost == cell["cost_rad"] and outcome.unstable == cell["unstable"]
+
+
+def test_a_resume_after_the_default_gains_moved_is_refused(tmp_path, monkeypatch) -> None:
+    """A search records the rates its controllers ran (``ran_at``); the day a default (or a
+    tuned file) changes, resuming it would add trials at other gains to its journal:
+    refused, naming the record."""
+    from agents.registry import entry
+
+    out = tmp_path / "moved"
+    args = [*TINY, "budget=10", "polish_budget=0", "search_seeds=[0]", f"out={out}"]
+    run_search(load_config(None, args), progress=False)
+    run_search(load_config(None, args), resume=True, progress=False)  # nothing moved: fine
+    monkeypatch.setitem(entry("pd_gravity").rates.DEFAULT_RATES, "zeta", 0.8)
+    with pytest.raises(InvalidConfigError, match="different settings: ran_at"):
+        run_search(load_config(None, args), resume=True, progress=False)

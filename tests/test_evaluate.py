@@ -530,3 +530,42 @@ def test_recovery_median_counts_episodes_that_never_recovered() -> None:
     s = summarize(rows, reference=None, resamples=100).iloc[0]
     assert s["recovery_s_median"] == np.inf
     assert s["recovered_frac"] == pytest.approx(0.2)
+
+
+@pytest.mark.parametrize("method", ["spawn", "fork"])
+def test_a_pools_workers_exit_when_the_study_is_killed(method) -> None:
+    """A study killed without shutting its pool down (``SIGTERM`` or ``SIGKILL``) leaves no
+    worker waiting for work forever: each exits within seconds of its parent."""
+    import signal
+    import subprocess
+    import sys
+    import textwrap
+    import time
+    from pathlib import Path
+
+    script = textwrap.dedent(f"""
+        import os, time
+        from train.common.runs import worker_pool
+        pool = worker_pool(1, {method!r})
+        print(pool.submit(os.getpid).result(), flush=True)
+        time.sleep(120)
+    """)
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script], cwd=root, stdout=subprocess.PIPE, text=True
+    )
+    worker = int(proc.stdout.readline())
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+
+    def alive(pid: int) -> bool:
+        try:
+            state = Path(f"/proc/{pid}/status").read_text()
+        except FileNotFoundError:
+            return False
+        return "\\nState:\\tZ" not in state  # a zombie has exited
+
+    deadline = time.monotonic() + 20.0
+    while alive(worker) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not alive(worker)

@@ -324,7 +324,7 @@ def test_a_search_at_gains_no_longer_shipped_is_labelled_stale(tmp_path):
     recorded rates (worst.yml) are the ones in agents/tuned."""
     import yaml
 
-    from agents.registry import pinned_rates, still_tuned, tuned_rates
+    from agents.registry import pinned_rates, still_pinned, tuned_rates
     from ptrack_gym.robots import robot_profile
 
     folder = search_folder(tmp_path)
@@ -346,10 +346,11 @@ def test_a_search_at_gains_no_longer_shipped_is_labelled_stale(tmp_path):
     assert "| Iiwa (tuned earlier, stale) | passivity |" in text
     assert "gains tuned earlier, stale" in text
     assert "Iiwa (tuned earlier, stale), impulse 2 J" in worst_case_sentence([folder])
-    file = tuned_rates("iiwa", "passivity")
-    assert still_tuned("iiwa", "passivity", file)
-    assert not still_tuned("iiwa", "passivity", {**file, "lam": file["lam"] * 2})
-    assert not still_tuned("iiwa", "no_such_controller", file)  # no tuned file: stale
+    iiwa = robot_profile("iiwa")
+    assert still_pinned(iiwa, "passivity", "tuned", shipped)
+    assert not still_pinned(iiwa, "passivity", "tuned", {**shipped, "lam": shipped["lam"] * 2})
+    assert not still_pinned(iiwa, "passivity", "tuned", tuned_rates("iiwa", "passivity"))
+    assert not still_pinned(iiwa, "no_such_controller", "tuned", shipped)  # unknown: stale
 
 
 def test_a_search_at_default_gains_since_changed_is_labelled_stale(tmp_path, monkeypatch):
@@ -389,3 +390,6 @@ def test_a_search_at_default_gains_since_changed_is_labelled_stale(tmp_path, mon
         yaml.safe_dump({"worst": {"passivity": {"impulse": {"2": {"gains": "default"}}}}})
     )
     assert not stale_search(folder, cfg)
+    pd.DataFrame([SEARCH_ROW]).to_csv(folder / "summary.csv", index=False)
+    (folder / "config.yml").write_text(yaml.safe_dump(cfg))
+    assert "| Iiwa (default, rates unrecorded) | passivity |" in worst_case_section([folder])

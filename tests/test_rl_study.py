@@ -205,8 +205,10 @@ def test_residuals_over_tuned_bases_are_compared_with_the_tuned_controllers(
 ) -> None:
     """The controllers alone run with the gains the residuals' bases had (``base_gains``);
     a pure run does not count; residuals over differently tuned bases are refused."""
-    from agents.registry import tuned_rates
+    from agents.registry import pinned_rates
+    from ptrack_gym.robots import robot_profile
 
+    profile = robot_profile("two_link")
     root = tmp_path / "tuned"
     shutil.copytree(study / "pure_s0", root / "pure_s0")
     for name in ("residual-passivity_s0", "residual-passivity_s1"):
@@ -214,7 +216,7 @@ def test_residuals_over_tuned_bases_are_compared_with_the_tuned_controllers(
         cfg_file = root / name / "config.yml"
         cfg = yaml.safe_load(cfg_file.read_text())
         cfg["config"]["base_gains"] = "tuned"
-        cfg["derived"]["base_rates"] = tuned_rates("two_link", "passivity")  # as it would pin
+        cfg["derived"]["base_rates"] = pinned_rates(profile, "passivity", "tuned")  # its pin
         cfg["config"]["seed"] = int(name[-1])
         cfg_file.write_text(yaml.safe_dump(cfg))
     runs = discover(root)

@@ -139,7 +139,7 @@ def test_every_shipped_residual_pins_the_rates_of_its_base() -> None:
     """A shipped residual over a controller (not a network) names the rates its base ran
     (``derived.base_rates``), each a rate that base knows, so moving a default or retuning
     cannot silently change the base it learned to correct."""
-    from agents.registry import effective_rates
+    from agents.registry import pinned_rates
     from agents.residual import NETWORK_BASE
     from ptrack_gym.robots import robot_profile
     from train.evaluation.policies import run_config
@@ -153,6 +153,6 @@ def test_every_shipped_residual_pins_the_rates_of_its_base() -> None:
         residuals += 1
         pinned = run["derived"].get("base_rates")
         assert pinned, folder.name
-        known = effective_rates(robot_profile(run["derived"]["robot"]), base)
-        assert set(pinned) <= set(known), folder.name
+        every = pinned_rates(robot_profile(run["derived"]["robot"]), base, "default")
+        assert set(pinned) == set(every), folder.name  # complete: no rate left to a default
     assert residuals >= 6

@@ -854,3 +854,25 @@ def test_bad_path_splits_raise_before_anything_is_written(
     with pytest.raises(TrainConfigError, match=match):
         run(parse_args(argv(out, "sac", residual, 100, *extra)))
     assert not out.exists()
+
+
+def test_a_residual_run_without_a_complete_pin_warns_when_evaluated(tmp_path: Path) -> None:
+    """A run written before pins (or pinning some rates only) is evaluated over today's
+    rates for what it did not pin: said, not silent; a complete pin is silent."""
+    import warnings
+
+    from train.evaluation.envs import trained_wrapper_kwargs
+    from train.rl.run import write_run_files
+
+    out = tmp_path / "r"
+    write_run_files(validate(parse_args(argv(out, "sac", "passivity", 100))), out, None)
+    saved = yaml.safe_load((out / "config.yml").read_text())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        trained_wrapper_kwargs(saved)
+    partial = {**saved, "derived": {**saved["derived"], "base_rates": {"omega": 20.0}}}
+    with pytest.warns(UserWarning, match="pinned only some of its base's rates"):
+        assert trained_wrapper_kwargs(partial)["base_gains"] == {"omega": 20.0}
+    none = {**saved, "derived": {**saved["derived"], "base_rates": None}}
+    with pytest.warns(UserWarning, match="recorded no rates for its base"):
+        assert trained_wrapper_kwargs(none)["base_gains"] == "default"

@@ -338,6 +338,14 @@ def test_bad_entrants_are_refused_before_any_episode(tmp_path, residual_run):
     with pytest.raises(InvalidConfigError, match=r"paths \[2\], test paths here"):
         run_verdict(tiny(tmp_path / "b", entrants={"two_link": [f"sb3:{seen}"]}), progress=False)
     assert not (tmp_path / "b" / "episodes.csv").exists()
+    moved = tmp_path / "moved"  # a copy whose base ran at default rates since changed
+    shutil.copytree(residual_run, moved)
+    saved = yaml.safe_load((moved / "config.yml").read_text())
+    assert saved["derived"]["base_rates"]  # pinned when it trained
+    saved["derived"]["base_rates"]["omega"] = 7.0
+    (moved / "config.yml").write_text(yaml.safe_dump(saved))
+    with pytest.raises(InvalidConfigError, match="base ran at default rates since changed"):
+        tiny(tmp_path / "c", entrants={"two_link": [f"sb3:{moved}"]}).validate()
 
 
 # -- Ray -------------------------------------------------------------------------------------

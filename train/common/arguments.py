@@ -42,10 +42,11 @@ __all__ = [
 
 _RESERVED = ("config", "set")  # the dests of --config and --set
 #: Keys a run writes into its ``config.yml`` as a record beside its settings (``rates``:
-#: the gains each controller ran at, :mod:`train.evaluation.rate_record`). Read back as a
-#: ``--config``, a run's file is its settings: a record key is skipped where the config has
-#: no field of that name.
-RECORD_KEYS = frozenset({"rates"})
+#: the gains each controller ran at, :mod:`train.evaluation.rate_record`; ``ran_at``: those
+#: of an adversarial search's controllers). Read back as a ``--config``, a run's file is its
+#: settings: a record key is skipped where the config has no field of that name.
+RATES_KEY, RAN_AT_KEY = "rates", "ran_at"
+RECORD_KEYS = frozenset({RATES_KEY, RAN_AT_KEY})
 _BOOL_WORDS = {"true": True, "yes": True, "on": True, "false": False, "no": False, "off": False}
 
 

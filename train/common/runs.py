@@ -21,6 +21,7 @@ import os
 import shlex
 import sys
 import threading
+import time
 from collections.abc import Collection, Mapping
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -203,6 +204,25 @@ def start_method(requested: str = "auto") -> str:
     return "fork" if safe else "spawn"
 
 
+#: How often a pool's worker checks that the process that started it is alive (s).
+PARENT_CHECK_S = 1.0
+
+
+def exit_with_parent(parent: int) -> None:
+    """A pool worker's initializer: a daemon thread ends the worker once ``parent`` (the
+    process that made the pool) is gone. A study stopped by ``SIGTERM`` or ``SIGKILL`` never
+    shuts its pool down, and its idle workers would otherwise wait for work forever (their
+    own copy of the call queue's write end keeps it open)."""
+
+    def watch() -> None:
+        while True:
+            time.sleep(PARENT_CHECK_S)
+            if os.getppid() != parent:
+                os._exit(0)
+
+    threading.Thread(target=watch, name="ptrack-parent-watch", daemon=True).start()
+
+
 def worker_pool(processes: int, method: str = "auto") -> ProcessPoolExecutor:
     """``processes`` worker processes of one thread each (the thread-count variables are
     set to 1 unless the user set them; a forked worker keeps this process's), started by
@@ -210,7 +230,12 @@ def worker_pool(processes: int, method: str = "auto") -> ProcessPoolExecutor:
     still be single-threaded; spawned ones start on the first task."""
     one_thread_defaults()  # BLAS and torch read them when they load in a spawned worker
     method = start_method(method)
-    pool = ProcessPoolExecutor(processes, mp_context=mp.get_context(method))
+    pool = ProcessPoolExecutor(
+        processes,
+        mp_context=mp.get_context(method),
+        initializer=exit_with_parent,
+        initargs=(os.getpid(),),
+    )
     if method == "fork":  # the first submit forks every worker, before any other thread
         pool.submit(int).result()
     return pool

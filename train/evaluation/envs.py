@@ -49,10 +49,40 @@ def trained_wrapper_kwargs(run: Mapping[str, Any]) -> dict[str, Any]:
     place of its ``base_gains`` choice — so a shipped residual keeps the base it learned to
     correct when ``agents/tuned`` is retuned or a default changes."""
     kwargs = residual_wrapper_kwargs(run["config"])
-    pinned = (run.get("derived") or {}).get("base_rates")
+    derived = run.get("derived") or {}
+    pinned, base = derived.get("base_rates"), run["config"].get("residual", "none")
     if pinned:
         kwargs["base_gains"] = dict(pinned)
+    if base not in ("none", "network") and derived.get("robot"):
+        _warn_unpinned(derived["robot"], base, kwargs["base_gains"], pinned)
     return kwargs
+
+
+def _warn_unpinned(robot: str, base: str, gains: Any, pinned: Any) -> None:
+    """Warn where a trained residual's base runs rates of today rather than of its training:
+    a run without a pin (written before pins), or a pin that leaves rates to the default."""
+    import warnings
+
+    from agents.registry import pinned_rates
+    from ptrack_gym.robots import robot_profile
+
+    if not pinned:
+        warnings.warn(
+            f"a residual over {base} on {robot} recorded no rates for its base (a run written "
+            f"before pins): its base runs today's {gains} gains, which may not be those it "
+            "trained over",
+            UserWarning,
+            stacklevel=3,
+        )
+        return
+    left = sorted(set(pinned_rates(robot_profile(robot), base, "default")) - set(pinned))
+    if left:
+        warnings.warn(
+            f"a residual over {base} on {robot} pinned only some of its base's rates: {left} "
+            "take today's defaults, which may not be those it trained over",
+            UserWarning,
+            stacklevel=3,
+        )
 
 
 def env_kwargs(

@@ -7,8 +7,8 @@ file's or the given ones). :func:`check_resume` compares a saved record with tod
 changed pair is refused by name, or — ``rerun_changed`` — its rows are dropped from the
 results file so that the resume runs them again, every other row kept. Learned entrants
 (``sb3:<run folder>``) have no rates here and their rows are never dropped (a residual
-pins its base's tuned rates in its own ``config.yml`` since that was recorded; an older run
-takes today's).
+pins every numeric rate of its base in its own ``config.yml``, ``derived.base_rates``; an
+older run takes today's, with a warning: :func:`train.evaluation.envs.trained_wrapper_kwargs`).
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import yaml
 from agents.registry import CONTROLLER_NAMES, effective_rates
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import ROBOTS
+from train.common.arguments import RATES_KEY  # the key of config.yml that holds the record
 from train.common.runs import (
     CONFIG_FILE,
     RunFolder,
@@ -34,8 +35,6 @@ from train.common.runs import (
 )
 from train.evaluation.results import read_episodes
 
-#: The key of ``config.yml`` that holds the record.
-RATES_KEY = "rates"  # one of train.common.arguments.RECORD_KEYS
 #: robot → controller → rate → value.
 Record = dict[str, dict[str, dict[str, Any]]]
 

@@ -194,7 +194,10 @@ def _gains_label(cfg: dict[str, Any], folder: Path) -> str:
     gains = cfg.get("gains", "default")
     if not isinstance(gains, str):
         return "given"
-    return f"{gains} earlier, stale" if stale_search(folder, cfg) else gains
+    if stale_search(folder, cfg):
+        return f"{gains} earlier, stale"
+    words = {g for used in _cell_gains(folder).values() for g in used if isinstance(g, str)}
+    return f"{gains}, rates unrecorded" if words & GAIN_WORDS else gains
 
 
 def _search_label(cfg: dict[str, Any], gains: str) -> str:
@@ -203,28 +206,46 @@ def _search_label(cfg: dict[str, Any], gains: str) -> str:
     return f"{cfg['env_id'].split('/')[-1].replace('Track-v0', '')} ({gains})"
 
 
+#: The gains a search's worst.yml cell records as a word, before cells recorded the rates.
+GAIN_WORDS = frozenset({"default", "tuned"})
+
+
+def _cell_gains(folder: Path) -> dict[str, list[Any]]:
+    """controller → the gains every cell of a search's ``worst.yml`` records (a word, or the
+    rates; empty without the file)."""
+    import yaml
+
+    worst = folder / "worst.yml"
+    if not worst.exists():
+        return {}
+    return {
+        controller: [cell.get("gains") for levels in families.values() for cell in levels.values()]
+        for controller, families in (yaml.safe_load(worst.read_text()).get("worst") or {}).items()
+    }
+
+
 def stale_search(folder: Path, cfg: dict[str, Any]) -> bool:
     """Whether a search at tuned or default gains ran any controller at rates other than
     those it would run today — its ``worst.yml`` cells record them: the tuned file's or the
     default's (:func:`agents.registry.pinned_rates`), with the config's ``rates`` for that
     controller over them. A controller no longer tuned is stale; a cell that records only
-    the word (written before rates were recorded) cannot be checked and is not called stale."""
-    import yaml
-
+    the word (written before rates were recorded) cannot be checked and is not called stale
+    (:func:`_gains_label` says "rates unrecorded")."""
     from agents.registry import GAIN_CHOICES, pinned_rates
     from ptrack_gym.errors import InvalidConfigError
     from ptrack_gym.robots import profile_for_env_id
 
-    worst, gains = folder / "worst.yml", cfg.get("gains", "default")
-    if not worst.exists() or gains not in GAIN_CHOICES:
+    gains = cfg.get("gains", "default")
+    if gains not in GAIN_CHOICES:
         return False
     profile = profile_for_env_id(cfg["env_id"])
-    for controller, families in (yaml.safe_load(worst.read_text()).get("worst") or {}).items():
-        used = [cell.get("gains") for levels in families.values() for cell in levels.values()]
+    for controller, used in _cell_gains(folder).items():
         try:
             today = pinned_rates(profile, controller, gains)
         except InvalidConfigError:  # no tuned gains any more
-            return any(isinstance(g, dict) for g in used)
+            if any(isinstance(g, dict) for g in used):
+                return True
+            continue
         today.update((cfg.get("rates") or {}).get(controller) or {})
         if any(isinstance(g, dict) and g != today for g in used):
             return True

@@ -50,6 +50,7 @@ import yaml
 
 import ptrack_gym  # noqa: F401  (registers the envs)
 from ptrack_gym.errors import InvalidConfigError
+from train.common.arguments import RAN_AT_KEY
 from train.common.runs import open_run, worker_count, worker_pool
 from train.plots.studies import adversary_plot
 from train.studies.adversary_config import FAMILIES, AdversaryConfig, load_config
@@ -131,8 +132,12 @@ def run_search(
         ) from exc
     cfg.validate()
     check_targets(cfg)
+    # the rates every controller's episodes run, recorded: a resume after a retune or a new
+    # default (its earlier trials ran other gains) is refused as any other changed setting
+    ran_at = {c: controller_gains(cfg, c) for c in cfg.controllers}
     run = open_run(
-        cfg.out, "optuna.journal", _config_dict(cfg), resume=resume, force=force,
+        cfg.out, "optuna.journal", {**_config_dict(cfg), RAN_AT_KEY: ran_at},
+        resume=resume, force=force,
         # a resume may extend the budget (each run grows) or add or extend the local run
         free=("workers", "out", "budget", "polish_budget"),
         saved_required=False,

@@ -248,7 +248,8 @@ def saved_config(saved: dict[str, Any]) -> AdversaryConfig:
     """The config of a search's ``config.yml``, that of a search before issue 38 included:
     it had one sampler ``seed`` and searched the box (``space`` "box"); one without
     ``polish_budget`` ran no local run."""
-    saved = dict(saved)
+    # ``ran_at``: the rates each controller's episodes ran (a record, not a setting)
+    saved = {k: v for k, v in saved.items() if k != arguments.RAN_AT_KEY}
     if "seed" in saved:
         saved["search_seeds"] = [int(saved.pop("seed"))]
     saved.setdefault("space", "box")

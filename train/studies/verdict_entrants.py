@@ -25,6 +25,7 @@ from typing import Any
 
 import pandas as pd
 
+from agents.registry import still_pinned
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import ROBOTS
 from train.common.paired_tests import TooFewPairsError, paired_comparisons
@@ -34,10 +35,15 @@ from train.evaluation.verdict import BOTH_METRICS, condition_name, words
 PURE_REFERENCE = "pd_gravity"
 
 
-def _run_config(name: str) -> dict[str, Any]:
+def _run(name: str) -> dict[str, Any]:
+    """The whole ``config.yml`` of entrant ``name`` (``config``, ``derived``, ...)."""
     from train.evaluation.policies import run_config, sb3_files
 
-    return dict(run_config(sb3_files(name)[0])["config"])
+    return dict(run_config(sb3_files(name)[0]))
+
+
+def _run_config(name: str) -> dict[str, Any]:
+    return dict(_run(name)["config"])
 
 
 def entrant_reference(name: str) -> str:
@@ -93,6 +99,14 @@ def check_entrants(
                 raise InvalidConfigError(
                     f"{name}'s {what} with {own} gains, the verdict's controllers with "
                     f"{gains}: compare an entrant with the controller it was built on"
+                )
+            residual = c["residual"] not in ("none", "network")
+            pinned = (_run(name).get("derived") or {}).get("base_rates") if residual else None
+            if pinned and not still_pinned(ROBOTS[robot], c["residual"], gains, pinned):
+                raise InvalidConfigError(
+                    f"{name}'s base ran at {gains} rates since changed ({pinned}); the "
+                    f"verdict's {c['residual']} runs today's: compare an entrant with the "
+                    "controller it was built on"
                 )
             reference = entrant_reference(name)
             if reference not in controllers:
