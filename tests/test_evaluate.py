@@ -367,6 +367,11 @@ def test_corrupt_results_are_refused(full_run, tmp_path, mutate, match) -> None:
         "path_seed=1.5",
         "worst_case=null",
         "worst_case=docs/results/adversary_iiwa",
+        "controller_rates={magic: {omega: 1.0}}",
+        "controller_rates={passivity: {warp: 1.0}}",
+        "controller_rates={passivity: {omega: .nan}}",
+        "controller_rates={passivity: {}}",
+        "controller_rates=[1]",
     ],
 )
 def test_bad_config_is_refused_before_running(tmp_path, override, capsys) -> None:
@@ -569,3 +574,29 @@ def test_a_pools_workers_exit_when_the_study_is_killed(method) -> None:
     while alive(worker) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not alive(worker)
+
+
+def test_a_controller_runs_at_its_own_rates_and_the_record_and_title_say_so(tmp_path) -> None:
+    """``controller_rates``: that controller's episodes run its gains with those rates over
+    them (the others untouched), its record in config.yml holds them, the title names them."""
+    import yaml
+
+    from agents.registry import make_controller
+    from train.evaluation.episode import _env
+
+    cfg = tiny(tmp_path, "own", "controller_rates={passivity: {damping_ratio: 0.25}}")
+    settings = cfg.settings()
+    assert settings.controller_gains("passivity", "two_link") == {"damping_ratio": 0.25}
+    assert settings.controller_gains("computed_torque", "two_link") == "default"
+    env = _env(settings, "none", 0.0)  # the cache owns it
+    own = make_controller("passivity", env, {"damping_ratio": 0.25}).gains
+    assert own != make_controller("passivity", env).gains
+    out = run_sweep(cfg, progress=False)
+    record = yaml.safe_load((out / "config.yml").read_text())["rates"]["two_link"]
+    assert record["passivity"]["damping_ratio"] == 0.25
+    assert "passivity with {'damping_ratio': 0.25}" in (out / "report.md").read_text()
+    plain = numbers(run_sweep(tiny(tmp_path, "plain"), progress=False) / "episodes.csv")
+    mine = numbers(out / "episodes.csv")
+    ct = mine["controller"] == "computed_torque"
+    assert mine[ct].equals(plain[ct])  # the others as they were
+    assert not mine[~ct]["path_dist_rms"].equals(plain[~ct]["path_dist_rms"])

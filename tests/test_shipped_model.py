@@ -156,3 +156,20 @@ def test_every_shipped_residual_pins_the_rates_of_its_base() -> None:
         every = pinned_rates(robot_profile(run["derived"]["robot"]), base, "default")
         assert set(pinned) == set(every), folder.name  # complete: no rate left to a default
     assert residuals >= 6
+
+
+def test_the_two_link_sweeps_run_the_residuals_bases_alone_at_their_pins(monkeypatch) -> None:
+    """The two-link residuals pinned the default passivity rates of their day (ζ = 0): the
+    RL sweeps run passivity alone at them too (``controller_rates``), so no pairing warns;
+    without it, passivity alone would run today's default against their ζ = 0 base."""
+    import dataclasses
+
+    from agents.passivity_gains import DEFAULT_RATES
+
+    monkeypatch.chdir(ROOT)
+    moved = DEFAULT_RATES["damping_ratio"] != 0.0
+    for name in ("main_rl", "heldout_paths_rl"):
+        cfg = load_config(ROOT / f"train/configs/evaluate/{name}.yml", [])
+        assert cfg.base_gain_mismatches() == [], name
+        bare = dataclasses.replace(cfg, controller_rates={})
+        assert bool(bare.base_gain_mismatches()) == moved, name

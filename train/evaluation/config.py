@@ -25,13 +25,14 @@ from __future__ import annotations
 
 import importlib.util
 import multiprocessing as mp
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
+from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, effective_rates, tuned_rates
 from ptrack_gym.disturbances import PRESETS
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.metrics import METRIC_NAMES
@@ -81,6 +82,10 @@ class EvalConfig:
     """Controller the paired differences are taken against."""
     gains: str = "default"
     """Gains of the model-based controllers: "default" or "tuned" (``agents/tuned``)."""
+    controller_rates: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Gain rates of some controllers over ``gains``, e.g. ``{passivity: {damping_ratio:
+    0.0}}`` — a residual's base alone at the rates it trained over; the report's title
+    names them."""
     metric: str = "path_dist_rms"
     """Main metric of the summary, the report and the robustness plot."""
     worst_case: list[str] = field(default_factory=list)
@@ -177,6 +182,7 @@ class EvalConfig:
             for c in self.controllers:
                 if not c.startswith(SB3_PREFIX):
                     tuned_rates(robot, c)  # raises naming the missing file
+        check_controller_rates(self.controller_rates, self.controllers, self.env_id)
         if self.backend == "ray":
             require_extra("ray", "ray", "backend: ray")
         if self.video:
@@ -187,7 +193,6 @@ class EvalConfig:
         this sweep, runs at other gains here than the residual was trained over (its run's
         ``base_gains``): an unfair pairing the sweep warns about (``ptrack study`` builds
         its sweeps with the runs' own gains)."""
-        from agents.registry import still_pinned
         from ptrack_gym.robots import robot_profile
         from train.evaluation.policies import run_config, sb3_files
 
@@ -205,7 +210,9 @@ class EvalConfig:
                     f"{c} was trained over {base} at {gains} gains; {base} alone runs here at "
                     f"{self.gains} gains (the residual keeps its own base's)"
                 )
-            elif pinned and not still_pinned(robot_profile(self._robot), base, gains, pinned):
+            elif pinned and not _runs_as_pinned(
+                robot_profile(self._robot), base, gains, pinned, self.controller_rates.get(base)
+            ):
                 since = "retuned" if gains == "tuned" else "changed"
                 lines.append(
                     f"{c} was trained over {base} at {gains} rates since {since} ({pinned}); "
@@ -232,6 +239,9 @@ class EvalConfig:
             failure_distance_rad=self.failure_distance_rad,
             recovery_threshold_rad=self.recovery_threshold_rad,
             gains=self.gains,
+            controller_rates=tuple(
+                (c, tuple(sorted(r.items()))) for c, r in sorted(self.controller_rates.items())
+            ),
         )
 
     def tasks(self) -> list[Task]:
@@ -263,3 +273,42 @@ def load_config(path: Path | None, overrides: Sequence[str], validate: bool = Tr
     """The config of a YAML file, with ``key=value`` overrides; unknown keys raise; with
     ``validate``, every field is checked (:meth:`EvalConfig.validate`)."""
     return arguments.load_config(EvalConfig, path, overrides, validate=validate)
+
+
+def check_controller_rates(
+    given: Mapping[str, Any], controllers: Sequence[str], env_id: str
+) -> None:
+    """Raise :class:`InvalidConfigError` unless ``given`` maps controllers of the sweep
+    (model-based ones) to non-empty mappings of rates each knows, with finite numbers."""
+    if not isinstance(given, Mapping):
+        raise InvalidConfigError(f"controller_rates must be a mapping, got {given!r}")
+    profile = profile_for_env_id(env_id)
+    for c, rates in given.items():
+        if c not in controllers or c.startswith(SB3_PREFIX):
+            raise InvalidConfigError(
+                f"controller_rates: {c!r} is not a model-based controller of the sweep"
+            )
+        known = effective_rates(profile, c)
+        if not isinstance(rates, Mapping) or not rates:
+            raise InvalidConfigError(f"controller_rates of {c}: a mapping of rates, got {rates!r}")
+        unknown = sorted(set(rates) - set(known))
+        if unknown:
+            raise InvalidConfigError(
+                f"controller_rates of {c}: unknown rate(s) {unknown}; known: {sorted(known)}"
+            )
+        bad = {k: v for k, v in rates.items() if isinstance(v, bool) or not isinstance(
+            v, (int, float)) or not np.isfinite(v)}  # fmt: skip
+        if bad:
+            raise InvalidConfigError(f"controller_rates of {c}: not finite numbers: {bad}")
+
+
+def _runs_as_pinned(
+    profile: Any, base: str, gains: str, pinned: Mapping[str, Any], own: Any = None
+) -> bool:
+    """Whether ``base`` alone runs here (``gains``, the sweep's own rates ``own`` over them)
+    at the rates a residual pinned for it."""
+    from agents.registry import pinned_rates, still_pinned
+
+    if not own:
+        return still_pinned(profile, base, gains, pinned)
+    return dict(pinned) == {**pinned_rates(profile, base, gains), **dict(own)}

@@ -93,9 +93,22 @@ class EpisodeSettings:
     """How joint-torque disturbances are sized: by M(q_home) ("home") or by M(q) where they
     start to act ("onset"); the env's ``disturbance_sizing``."""
 
-    def controller_gains(self) -> str | dict[str, Any]:
-        """The ``gains`` argument of ``make_controller``."""
-        return self.gains if isinstance(self.gains, str) else dict(self.gains)
+    controller_rates: tuple[tuple[str, tuple[tuple[str, Any], ...]], ...] = ()
+    """Gain rates of some controllers over ``gains``, as sorted (controller, sorted (name,
+    value) pairs) pairs (an evaluation config's ``controller_rates``)."""
+
+    def controller_gains(self, controller: str | None = None, robot: str | None = None) -> Any:
+        """The ``gains`` argument of ``make_controller`` for ``controller`` on ``robot``:
+        ``gains``, with the controller's own rates over them if it has any."""
+        gains = self.gains if isinstance(self.gains, str) else dict(self.gains)
+        own = dict(self.controller_rates).get(controller)
+        if not own:
+            return gains
+        if gains == "tuned":
+            from agents.registry import tuned_rates
+
+            gains = tuned_rates(str(robot), str(controller))
+        return {**(gains if isinstance(gains, dict) else {}), **dict(own)}
 
 
 @dataclass(frozen=True)
@@ -162,7 +175,7 @@ def _cached(cache: OrderedDict[tuple[Any, ...], Any], key: tuple[Any, ...], buil
 
 
 def _env_key(settings: EpisodeSettings) -> EpisodeSettings:
-    return dataclasses.replace(settings, gains="default")
+    return dataclasses.replace(settings, gains="default", controller_rates=())
 
 
 def settings_kwargs(settings: EpisodeSettings) -> dict[str, Any]:
@@ -383,7 +396,8 @@ def run_episode(
         env, policy = _sb3_env_and_policy(task.controller, settings, task.disturbance, task.level)
     else:
         env = _env(settings, task.disturbance, task.level)
-        controller = make_controller(task.controller, env, settings.controller_gains())
+        gains = settings.controller_gains(task.controller, env.unwrapped.robot_profile.name)
+        controller = make_controller(task.controller, env, gains)
         policy = ControllerPolicy(env, controller)
     u = env.unwrapped
     record, storage = rollout(env, policy, task.reset_seed, keep_trace)

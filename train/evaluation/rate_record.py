@@ -39,12 +39,21 @@ from train.evaluation.results import read_episodes
 Record = dict[str, dict[str, dict[str, Any]]]
 
 
-def rate_record(robots: Iterable[str], controllers: Iterable[str], gains: Any) -> Record:
-    """robot → controller → its rates at ``gains`` ("default", "tuned" or a mapping), for
-    every registry controller of ``controllers`` (learned entrants skipped)."""
+def rate_record(
+    robots: Iterable[str],
+    controllers: Iterable[str],
+    gains: Any,
+    given: Mapping[str, Mapping[str, Any]] | None = None,
+) -> Record:
+    """robot → controller → its rates at ``gains`` ("default", "tuned" or a mapping), with
+    ``given[controller]`` over them, for every registry controller of ``controllers``
+    (learned entrants skipped)."""
     names = [c for c in controllers if c in CONTROLLER_NAMES]
     return {
-        robot: {c: dict(effective_rates(ROBOTS[robot], c, gains)) for c in names}
+        robot: {
+            c: {**effective_rates(ROBOTS[robot], c, gains), **dict((given or {}).get(c) or {})}
+            for c in names
+        }
         for robot in robots
     }
 

@@ -141,7 +141,8 @@ def run_sweep(
     robot = profile_for_env_id(cfg.env_id).name
     run = open_recorded_run(
         cfg.out, "episodes.csv", dataclasses.asdict(cfg),
-        rate_record([robot], cfg.controllers, cfg.gains), resume=resume, force=force,
+        rate_record([robot], cfg.controllers, cfg.gains, cfg.controller_rates),
+        resume=resume, force=force,
         rerun_changed=rerun_changed, free=RUN_ONLY_FIELDS, columns=COLUMNS,
         key_columns=KEY_COLUMNS, pair_of=lambda row: (robot, row["controller"]),
     )  # fmt: skip
@@ -265,8 +266,10 @@ def finish(
         draw(robustness_plot, summary, cfg.metric, out / f"robustness_{cfg.metric}.png")
     from train.evaluation.report import write_report
 
+    own = "; ".join(f"{c} with {dict(r)}" for c, r in sorted(cfg.controller_rates.items()))
     write_report(
-        df, out, cfg.metric, cfg.reference, cfg.worst_case, title=cfg.env_id,
+        df, out, cfg.metric, cfg.reference, cfg.worst_case,
+        title=cfg.env_id + (f" ({cfg.gains} gains; {own})" if own else ""),
         figures=cfg.plots, draw=draw,
     )  # fmt: skip
     if pool is not None:  # no more work: the workers exit after their plots (the caller's
