@@ -40,6 +40,7 @@ import numpy as np
 from agents.base import FloatArray
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.paths import ReferencePath
+from ptrack_gym.robots import is_preview_env_id
 
 #: The files of a pure model folder (``train.rl.run``'s run folder or a ``models/`` copy).
 MODEL_FILE = "model.zip"
@@ -179,10 +180,10 @@ def check_network_folder(model_dir: str | Path, robot: str | None = None) -> Non
                 f"base_model {str(model_dir)!r} must be a pure SB3 SAC policy deciding every "
                 f"step; its run has {key}={config.get(key)!r}"
             )
-    if str(config.get("env_id", "")).endswith("-v1"):
+    if is_preview_env_id(str(config.get("env_id", ""))):
         raise InvalidConfigError(
             f"base_model {str(model_dir)!r} was trained on the preview observation "
-            f"({config['env_id']}): a network base sees the -v0 observation"
+            f"({config['env_id']}): a network base sees the plain -v0 observation"
         )
     if robot is not None and derived.get("robot") not in (None, robot):
         raise InvalidConfigError(

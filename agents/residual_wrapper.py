@@ -395,8 +395,9 @@ def make_residual_env(
     """``gym.make(env_id, **env_options)`` in a :class:`ResidualWrapper` built by ``spec``.
 
     Args:
-        env_id: a plain ptrack_gym id (``ptrack_gym/<Robot>Track-v0``, or its ``-v1``
-            with the preview of the reference, which the residual's observation keeps).
+        env_id: a plain ptrack_gym id (``ptrack_gym/<Robot>Track-v0``), or its preview id
+            (``…TrackPreview-v0``, the reference ahead, which the residual's observation
+            keeps).
         spec: the residual's options whole; or, keyword style, the base's name (a name of
             :data:`~agents.residual_spec.RESIDUAL_BASES`) with the spec's other fields
             among ``options``.

@@ -23,8 +23,8 @@ EPISODE_S = 10.0
 DEFAULT_CONTROL_HZ = 1000.0
 
 ENV_IDS: list[str] = []
-#: The ``-v1`` ids: the ``-v0`` env with a preview of the reference ahead in its
-#: observation (:mod:`ptrack_gym.envs.preview`); the ``-v0`` ids are unchanged.
+#: The preview ids ``ptrack_gym/<Robot>TrackPreview-v0``: the ``-v0`` env with a preview of
+#: the reference ahead in its observation (:mod:`ptrack_gym.envs.preview`).
 PREVIEW_ENV_IDS: list[str] = []
 for _profile in ROBOTS.values():
     if _profile.env_id not in gymnasium.registry:
@@ -35,15 +35,15 @@ for _profile in ROBOTS.values():
             max_episode_steps=int(EPISODE_S * DEFAULT_CONTROL_HZ),
         )
     ENV_IDS.append(_profile.env_id)
-    _v1 = preview_env_id(_profile.env_id)
-    if _v1 not in gymnasium.registry:
+    _preview = preview_env_id(_profile.env_id)
+    if _preview not in gymnasium.registry:
         gymnasium.register(
-            id=_v1,
+            id=_preview,
             entry_point="ptrack_gym.envs.preview:make_preview_env",
             kwargs={"robot": _profile.name},
             max_episode_steps=int(EPISODE_S * DEFAULT_CONTROL_HZ),
         )
-    PREVIEW_ENV_IDS.append(_v1)
+    PREVIEW_ENV_IDS.append(_preview)
 
 #: The base controllers of the residual-RL ids ``ptrack_gym/<Robot>Track-Residual-<Base>-v0``
 #: (``agents.registry.CONTROLLER_NAMES``: tests/test_zoo.py keeps the two equal). Registered

@@ -96,7 +96,7 @@ def test_a_bad_damping_ratio_is_refused(zeta) -> None:
 def test_the_paper_law_refuses_rates_it_cannot_take() -> None:
     """``passivity_paper`` fixes the damper, the re-synchronisation and the remedy off: a
     rate asking otherwise is an error, not silently dropped; asking for them off is fine."""
-    env = gym.make("ptrack_gym/TwoLinkTrack-v1")
+    env = gym.make("ptrack_gym/TwoLinkTrackPreview-v0")
     with pytest.raises(InvalidConfigError, match=r"damping_ratio=0\.0"):
         make_controller("passivity_paper", env, {"damping_ratio": 0.5})
     with pytest.raises(InvalidConfigError, match=r"sync_rate=0\.0"):
@@ -110,7 +110,7 @@ def _path_error(freq_hz: float, rates=None) -> float:
     controller under a sine torque on joint 2 at ``freq_hz``."""
     spec = {"type": "periodic", "fraction": 0.02, "frequency_hz": freq_hz, "direction": [0, 1]}
     env = gym.make(
-        "ptrack_gym/TwoLinkTrack-v1", disturbance=spec, horizon_s=4.0, max_episode_steps=4000
+        "ptrack_gym/TwoLinkTrackPreview-v0", disturbance=spec, horizon_s=4.0, max_episode_steps=4000
     )
     policy = ControllerPolicy(env, make_controller("passivity", env, rates))
     obs, _ = env.reset(seed=0)

@@ -1,6 +1,7 @@
-"""The ``-v1`` envs: the ``-v0`` observation followed by the reference ahead (q_r − q and
-q_r' at the preview times), exact against the path; the ``-v0`` envs unchanged; Gymnasium's
-and SB3's checkers pass; bad preview times are refused."""
+"""The preview envs (``…TrackPreview-v0``): the ``-v0`` observation followed by the
+reference ahead (q_r − q and q_r' at the preview times), exact against the path; the
+``-v0`` envs unchanged and not told to upgrade; Gymnasium's and SB3's checkers pass; bad
+preview times are refused."""
 
 from __future__ import annotations
 
@@ -13,11 +14,12 @@ import pytest
 import ptrack_gym
 from ptrack_gym.envs.preview import DEFAULT_PREVIEW_S, ReferencePreview
 from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.robots import plain_env_id
 
 
 @pytest.mark.parametrize("env_id", ptrack_gym.PREVIEW_ENV_IDS)
-def test_v1_appends_the_reference_ahead_to_the_v0_observation(env_id):
-    v0_id = env_id.removesuffix("-v1") + "-v0"
+def test_a_preview_env_appends_the_reference_ahead_to_the_plain_observation(env_id):
+    v0_id = plain_env_id(env_id)
     v1, v0 = gym.make(env_id, path="random", path_seed=3), gym.make(v0_id, path="random",
                                                                       path_seed=3)  # fmt: skip
     try:
@@ -47,7 +49,7 @@ def test_v1_appends_the_reference_ahead_to_the_v0_observation(env_id):
 
 def test_the_preview_is_of_the_future_the_env_will_reward():
     """The preview δ ahead at step k is the v0 reference block at step k + δ/Δt."""
-    env = gym.make("ptrack_gym/TwoLinkTrack-v1", control_hz=100.0, preview_s=(0.05, 0.1))
+    env = gym.make("ptrack_gym/TwoLinkTrackPreview-v0", control_hz=100.0, preview_s=(0.05, 0.1))
     n = 2
     obs, _ = env.reset(seed=1)
     history = [obs]
@@ -62,20 +64,20 @@ def test_the_preview_is_of_the_future_the_env_will_reward():
     env.close()
 
 
-def test_v0_is_unchanged():
+def test_the_plain_env_is_unchanged():
     env = gym.make("ptrack_gym/IiwaTrack-v0")
     assert env.observation_space.shape == (6 * 7 + 2,)
     assert not isinstance(env, ReferencePreview)
     env.close()
 
 
-def test_v1_passes_the_checkers():
+def test_a_preview_env_passes_the_checkers():
     from gymnasium.utils.env_checker import check_env
 
     sb3_checker = pytest.importorskip(
         "stable_baselines3.common.env_checker", reason="the optional 'train' extra (SB3)"
     )
-    env = gym.make("ptrack_gym/TwoLinkTrack-v1")
+    env = gym.make("ptrack_gym/TwoLinkTrackPreview-v0")
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*different from the unwrapped.*")
         check_env(env, skip_render_check=True)
@@ -86,4 +88,15 @@ def test_v1_passes_the_checkers():
 @pytest.mark.parametrize("preview_s", [(), (0.0,), (-0.1,), (float("nan"),), (True,), ("a",)])
 def test_bad_preview_times_are_refused(preview_s):
     with pytest.raises(InvalidConfigError, match="preview_s"):
-        gym.make("ptrack_gym/TwoLinkTrack-v1", preview_s=preview_s)
+        gym.make("ptrack_gym/TwoLinkTrackPreview-v0", preview_s=preview_s)
+
+
+@pytest.mark.parametrize("env_id", ptrack_gym.ENV_IDS)
+def test_making_a_plain_env_says_nothing_of_an_upgrade(env_id):
+    """No id is a newer version of another: Gymnasium warned on every ``gym.make`` of a
+    ``-v0`` that it was out of date while the preview env was registered as its ``-v1``."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # Gymnasium's "out of date" is a DeprecationWarning
+        gym.make(env_id).close()
+    assert plain_env_id(ptrack_gym.robots.preview_env_id(env_id)) == env_id
+    assert gym.spec(ptrack_gym.robots.preview_env_id(env_id)).version == 0

@@ -20,7 +20,7 @@ from train.rl.actor import zero_init_actor
 from train.rl.config import TrainConfigError, parse_args, validate
 from train.rl.run import run
 
-ENV = "ptrack_gym/TwoLinkTrack-v1"
+ENV = "ptrack_gym/TwoLinkTrackPreview-v0"
 NET = "dict(net_arch=dict(pi=[16], vf=[16]), lstm_hidden_size=8, log_std_init=-1.0)"
 
 
@@ -65,7 +65,7 @@ def test_a_recurrent_run_reloads_and_acts_as_it_trained(trained: Path) -> None:
 
 
 def test_the_evaluation_gives_a_recurrent_run_the_same_episode_twice(trained: Path) -> None:
-    # a sweep of the -v0 id (the controllers' env) runs the -v1 run in its own observation
+    # a sweep of the -v0 id (the controllers' env) runs the preview run in its own observation
     settings = EpisodeSettings("ptrack_gym/TwoLinkTrack-v0", 0.2, 250.0, "on_path", 0.5, 0.01)
     task = Task(f"sb3:{trained}", "periodic", 0.5, 0, 0)
     first, second = (run_episode(task, settings)[0] for _ in range(2))
@@ -103,7 +103,7 @@ def test_a_preview_id_takes_its_plain_ids_hyperparameters() -> None:
 
     for algo in ("sac", "ppo", "ppo_lstm"):
         plain = load_hyperparams(algo, "ptrack_gym/IiwaTrack-v0", None, {})
-        assert load_hyperparams(algo, "ptrack_gym/IiwaTrack-v1", None, {}) == plain
+        assert load_hyperparams(algo, "ptrack_gym/IiwaTrackPreview-v0", None, {}) == plain
     # the iiwa's own section differs from the default, so the fallback is seen
     assert plain["n_timesteps"] != load_hyperparams("ppo_lstm", ENV, None, {})["n_timesteps"]
 
@@ -116,7 +116,7 @@ def test_a_preview_run_is_refused_as_a_network_base(trained: Path, tmp_path: Pat
     from agents.network import check_network_folder
     from ptrack_gym.errors import InvalidConfigError
 
-    pure = tmp_path / "pure"  # the run's files as a pure SAC run on the -v1 id
+    pure = tmp_path / "pure"  # the run's files as a pure SAC run on the preview id
     shutil.copytree(trained, pure)
     saved = yaml.safe_load((pure / "config.yml").read_text())
     saved["config"].update(residual="none", algo="sac")

@@ -1,12 +1,12 @@
-"""A preview of the reference ahead: :class:`ReferencePreview`, and the ``-v1`` envs.
+"""A preview of the reference ahead: :class:`ReferencePreview`, and the preview envs.
 
 A policy that sees only q_r(s₀ + t) and q_r'(s₀ + t) (the ``-v0`` observation) cannot
-anticipate the path: on a path it never trained on it must react to every bend. The ``-v1``
-envs (``ptrack_gym/<Robot>Track-v1``) append, for each preview time δ of ``preview_s``
+anticipate the path: on a path it never trained on it must react to every bend. The preview
+envs (``ptrack_gym/<Robot>TrackPreview-v0``) append, for each preview time δ of ``preview_s``
 (default 0.05, 0.1, 0.2 and 0.4 s), where the reference will be relative to the arm and how
 fast it will move; the ``-v0`` envs are unchanged.
 
-Observation of ``-v1`` (m = len(preview_s), n joints): the ``-v0`` observation (6n + 2
+Observation of a preview env (m = len(preview_s), n joints): the ``-v0`` observation (6n + 2
 entries, ``TrackingEnv``'s table), then for i = 1..m
 
 | index (after the v0 block)   | quantity                            | unit  | bound   |
@@ -30,7 +30,7 @@ from gymnasium import spaces
 
 from ptrack_gym.errors import InvalidConfigError
 
-#: The preview times of the ``-v1`` envs (s).
+#: The preview times of the preview envs (s).
 DEFAULT_PREVIEW_S: tuple[float, ...] = (0.05, 0.1, 0.2, 0.4)
 
 
@@ -79,7 +79,7 @@ class ReferencePreview(gym.ObservationWrapper[np.ndarray, np.ndarray, np.ndarray
 
 
 def make_preview_env(preview_s: Sequence[float] = DEFAULT_PREVIEW_S, **kwargs: Any) -> gym.Env:
-    """The entry point of the ``-v1`` ids: a ``TrackingEnv`` of ``kwargs`` in a
+    """The entry point of the preview ids: a ``TrackingEnv`` of ``kwargs`` in a
     :class:`ReferencePreview` of ``preview_s``."""
     from ptrack_gym.envs.tracking import TrackingEnv
 

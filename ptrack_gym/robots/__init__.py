@@ -31,15 +31,34 @@ def robot_profile(name: str) -> RobotProfile:
         raise InvalidConfigError(f"unknown robot {name!r}; known: {sorted(ROBOTS)}") from None
 
 
+#: How a preview id ends: ``ptrack_gym/<Robot>TrackPreview-v0``. A name of its own, not a
+#: ``-v1`` of the plain id: Gymnasium reads a higher version as the newer revision of the
+#: same env and told everyone making a ``-v0`` to "upgrade" to it.
+PREVIEW_SUFFIX = "Preview-v0"
+
+
 def preview_env_id(env_id: str) -> str:
-    """The ``-v1`` id (the observation with a preview of the reference ahead,
-    :mod:`ptrack_gym.envs.preview`) of a robot's ``-v0`` id."""
-    return env_id.removesuffix("-v0") + "-v1"
+    """The preview id (the observation with a preview of the reference ahead,
+    :mod:`ptrack_gym.envs.preview`) of a robot's plain ``-v0`` id."""
+    return env_id.removesuffix("-v0") + PREVIEW_SUFFIX
+
+
+def is_preview_env_id(env_id: str) -> bool:
+    """Whether ``env_id`` is a preview id (``ptrack_gym/<Robot>TrackPreview-v0``)."""
+    return env_id.endswith(PREVIEW_SUFFIX)
+
+
+def plain_env_id(env_id: str) -> str:
+    """The plain ``-v0`` id of a preview id (the same robot, task and dynamics); any other
+    id unchanged."""
+    if is_preview_env_id(env_id):
+        return env_id.removesuffix(PREVIEW_SUFFIX) + "-v0"
+    return env_id
 
 
 def profile_for_env_id(env_id: str) -> RobotProfile:
-    """The profile of the robot whose env id is ``env_id`` (its ``-v0`` id or the ``-v1``
-    one with the preview: the same robot, task and dynamics)."""
+    """The profile of the robot whose env id is ``env_id`` (its ``-v0`` id or its preview
+    id: the same robot, task and dynamics)."""
     for profile in ROBOTS.values():
         if env_id in (profile.env_id, preview_env_id(profile.env_id)):
             return profile
@@ -57,6 +76,8 @@ __all__ = [
     "RobotModel",
     "RobotProfile",
     "home_inertia_kgm2",
+    "is_preview_env_id",
+    "plain_env_id",
     "preview_env_id",
     "profile_for_env_id",
     "robot_profile",

@@ -223,7 +223,7 @@ def _sb3_env_and_policy(
         policy, cfg = load_sb3_policy(controller, settings.env_id)
         c, derived = cfg["config"], cfg["derived"]
         env = build_env(
-            c["env_id"],  # the run's own observation version (-v0, or -v1 with the preview)
+            c["env_id"],  # the run's own observation (plain, or the preview id's)
             c["residual"],
             c["scale_fraction"],
             derived["control_hz"],

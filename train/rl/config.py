@@ -87,7 +87,7 @@ class TrainConfig:
     safeguards that act on the torch actor (``zero_init_residual``, ``init_log_std``,
     ``critic_warmup_steps``, ``actor_lr_scale``, ``actor_bc_weight``) are sb3's only."""
     env_id: str = "ptrack_gym/TwoLinkTrack-v0"
-    """A ptrack_gym env id (``ptrack_gym.ENV_IDS``), or its ``-v1`` (``PREVIEW_ENV_IDS``:
+    """A ptrack_gym env id (``ptrack_gym.ENV_IDS``), or its preview id (``PREVIEW_ENV_IDS``:
     the reference ahead in the observation; hyperparameters from the ``-v0`` section)."""
     residual: str = "none"
     """"none" for pure RL, or the base controller of a residual policy (agents.registry)."""

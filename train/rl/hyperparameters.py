@@ -24,6 +24,7 @@ from stable_baselines3.common.utils import LinearSchedule
 from torch import nn
 
 from ptrack_gym.errors import InvalidConfigError
+from ptrack_gym.robots import plain_env_id
 from train.common.algorithms import ON_POLICY, RECURRENT_ALGOS
 from train.evaluation.policies import algo_class
 
@@ -130,12 +131,12 @@ def load_hyperparams(
     """The merged hyperparameters of a run (unvalidated, strings not yet parsed).
 
     Precedence, lowest first: ``<algo>.yml``'s ``default``, its ``<env_id>`` section,
-    then the same two sections of ``extra_file``, then ``overrides``. A ``-v1`` id (the
-    preview observation) without a section of its own takes its ``-v0`` id's: the same
+    then the same two sections of ``extra_file``, then ``overrides``. A preview id (the
+    preview observation) without a section of its own takes its plain ``-v0`` id's: the same
     robot and task.
     """
     merged: dict[str, Any] = {}
-    plain = env_id.removesuffix("-v1") + "-v0" if env_id.endswith("-v1") else env_id
+    plain = plain_env_id(env_id)
     files = [HYPERPARAMS_DIR / f"{algo}.yml"]
     if extra_file is not None:
         files.append(Path(extra_file))

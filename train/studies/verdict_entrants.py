@@ -2,7 +2,7 @@
 (``sb3:<run folder>``) judged on the verdict's test paths beside the model-based
 controllers — paths they never trained or were evaluated on during training.
 
-An entrant runs at its own control rate and in its own observation (``-v0`` or ``-v1``),
+An entrant runs at its own control rate and in its own observation (plain or preview),
 with the disturbance draws of the same (path, seed) as every controller, so it is paired with
 them like any controller. Each is compared with its **reference** — the base controller of a
 residual, the controller a pure policy imitated, else PD + gravity — by the exact paired
