@@ -14,6 +14,7 @@ training scripts and the benchmarks use. Every controller is built from the env'
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -183,6 +184,52 @@ def still_pinned(profile: RobotProfile, name: str, gains: str, rates: Mapping[st
     try:
         return dict(rates) == pinned_rates(profile, name, gains)
     except InvalidConfigError:
+        return False
+
+
+def check_rates(
+    profile: RobotProfile, name: str, rates: object, what: str = "rates"
+) -> dict[str, Any]:
+    """``rates`` as a dict if it is a non-empty mapping of rates ``name`` knows on the robot
+    of ``profile`` (the keys of :func:`effective_rates`), each of its default's kind — a
+    number finite and ≥ 0 (every rate is a bandwidth, ratio, floor or gain), a flag a bool,
+    a choice a string — and none contradicting a rate its law fixes (``FIXED``: the paper's
+    passivity law), which would be recorded but never run.
+
+    Raises:
+        InvalidConfigError: naming ``what`` and every offending rate.
+    """
+    if not isinstance(rates, Mapping) or not rates:
+        raise InvalidConfigError(f"{what}: a non-empty mapping of rates, got {rates!r}")
+    known = effective_rates(profile, name)
+    unknown = sorted(str(k) for k in rates if k not in known)
+    if unknown:
+        raise InvalidConfigError(f"{what}: unknown rate(s) {unknown}; known: {sorted(known)}")
+    bad = {k: v for k, v in rates.items() if not _of_kind(v, known[k])}
+    if bad:
+        raise InvalidConfigError(
+            f"{what}: {bad} not of their rates' kind (numbers finite and >= 0, flags bool, "
+            "choices strings)"
+        )
+    fixed = getattr(entry(name).rates, "FIXED", {})
+    clash = {k: v for k, v in rates.items() if k in fixed and v != fixed[k]}
+    if clash:
+        raise InvalidConfigError(
+            f"{what}: {name} fixes { ({k: fixed[k] for k in clash}) }, got {clash}"
+        )
+    return dict(rates)
+
+
+def _of_kind(value: object, default: object) -> bool:
+    if isinstance(default, bool) or isinstance(value, bool):
+        return isinstance(value, bool) and isinstance(default, bool)
+    if isinstance(default, str):
+        return isinstance(value, str)
+    if not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value) and value >= 0
+    except OverflowError:  # an int beyond any float
         return False
 
 

@@ -115,6 +115,27 @@ def test_video_records_the_example_episode_of_every_controller(tmp_path) -> None
     assert not list(out.glob("*.png"))  # plots=false: no figure, the aggregate's included
 
 
+def test_the_video_runs_the_sweeps_gains_and_path(tmp_path, monkeypatch) -> None:
+    """The example episode filmed is the sweep's: its controller's own rates and its path
+    (it ran every controller at default gains on the default path)."""
+    pytest.importorskip("moviepy", reason="the optional 'video' extra (MoviePy) is not installed")
+    import train.evaluation.video as video
+
+    calls = {}
+    monkeypatch.setattr(
+        video, "record_episode", lambda env_id, ctrl, *a, **kw: calls.setdefault(ctrl, kw)
+    )
+    cfg = tiny(
+        tmp_path, "film", "seeds=1", "plots=false", "video=true", "path=random", "path_seed=3",
+        "controller_rates={passivity: {damping_ratio: 0.25}}",
+    )  # fmt: skip
+    run_sweep(cfg, progress=False)
+    assert calls["passivity"]["gains"] == {"damping_ratio": 0.25}
+    assert calls["computed_torque"]["gains"] == "default"
+    for kw in calls.values():
+        assert kw["env_kwargs"]["path"] == "random" and kw["env_kwargs"]["path_seed"] == 3
+
+
 @pytest.mark.parametrize(
     ("module", "override"), [("moviepy", "video=true"), ("ray", "backend=ray")]
 )
@@ -372,6 +393,9 @@ def test_corrupt_results_are_refused(full_run, tmp_path, mutate, match) -> None:
         "controller_rates={passivity: {omega: .nan}}",
         "controller_rates={passivity: {}}",
         "controller_rates=[1]",
+        "controller_rates={passivity: {damping_ratio: -0.5}}",
+        "controller_rates={passivity: {omega: 1e400}}",
+        "controller_rates={passivity_paper: {damping_ratio: 0.5}}",  # its law fixes 0
     ],
 )
 def test_bad_config_is_refused_before_running(tmp_path, override, capsys) -> None:

@@ -147,3 +147,30 @@ def _gains(controller: Controller) -> object:
     if inner is not None:
         return (inner.gains, controller.window_s, controller.sync_rate_1_s)
     return controller.gains
+
+
+@pytest.mark.parametrize(
+    ("name", "rates", "match"),
+    [
+        ("passivity", {}, "non-empty mapping"),
+        ("passivity", [("omega", 1.0)], "non-empty mapping"),
+        ("passivity", {"warp": 1.0}, "unknown rate"),
+        ("passivity", {"omega": float("nan")}, "kind"),
+        ("passivity", {"damping_ratio": -0.5}, "kind"),
+        ("passivity", {"omega": 10**400}, "kind"),  # an int beyond any float
+        ("passivity", {"omega": "fast"}, "kind"),
+        ("passivity", {"omega": True}, "kind"),
+        ("passivity", {"saturation_aware": 1}, "kind"),
+        ("passivity_paper", {"damping_ratio": 0.5}, "fixes"),  # recorded, never run
+    ],
+)
+def test_rates_a_controller_cannot_run_are_refused(name, rates, match) -> None:
+    with pytest.raises(InvalidConfigError, match=match):
+        registry.check_rates(robot_profile("two_link"), name, rates)
+
+
+def test_rates_a_controller_can_run_pass_as_given() -> None:
+    profile = robot_profile("two_link")
+    given = {"omega": 30, "damping_ratio": 0.0, "saturation_aware": False, "pump": "paper"}
+    assert registry.check_rates(profile, "passivity", given) == given
+    assert registry.check_rates(profile, "passivity_paper", {"damping_ratio": 0.0, "lam": 3.0})

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, effective_rates, tuned_rates
+from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, check_rates, tuned_rates
 from ptrack_gym.disturbances import PRESETS
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.metrics import METRIC_NAMES
@@ -279,27 +279,16 @@ def check_controller_rates(
     given: Mapping[str, Any], controllers: Sequence[str], env_id: str
 ) -> None:
     """Raise :class:`InvalidConfigError` unless ``given`` maps controllers of the sweep
-    (model-based ones) to non-empty mappings of rates each knows, with finite numbers."""
+    (model-based ones) to rates each can run (:func:`agents.registry.check_rates`)."""
     if not isinstance(given, Mapping):
         raise InvalidConfigError(f"controller_rates must be a mapping, got {given!r}")
     profile = profile_for_env_id(env_id)
     for c, rates in given.items():
-        if c not in controllers or c.startswith(SB3_PREFIX):
+        if c not in controllers or c not in CONTROLLER_NAMES:
             raise InvalidConfigError(
                 f"controller_rates: {c!r} is not a model-based controller of the sweep"
             )
-        known = effective_rates(profile, c)
-        if not isinstance(rates, Mapping) or not rates:
-            raise InvalidConfigError(f"controller_rates of {c}: a mapping of rates, got {rates!r}")
-        unknown = sorted(set(rates) - set(known))
-        if unknown:
-            raise InvalidConfigError(
-                f"controller_rates of {c}: unknown rate(s) {unknown}; known: {sorted(known)}"
-            )
-        bad = {k: v for k, v in rates.items() if isinstance(v, bool) or not isinstance(
-            v, (int, float)) or not np.isfinite(v)}  # fmt: skip
-        if bad:
-            raise InvalidConfigError(f"controller_rates of {c}: not finite numbers: {bad}")
+        check_rates(profile, c, rates, f"controller_rates of {c}")
 
 
 def _runs_as_pinned(

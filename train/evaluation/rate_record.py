@@ -49,9 +49,13 @@ def rate_record(
     ``given[controller]`` over them, for every registry controller of ``controllers``
     (learned entrants skipped)."""
     names = [c for c in controllers if c in CONTROLLER_NAMES]
+    own = given or {}
+    # the rates each is built with: its own over the sweep's, then what its law fixes
     return {
         robot: {
-            c: {**effective_rates(ROBOTS[robot], c, gains), **dict((given or {}).get(c) or {})}
+            c: effective_rates(
+                ROBOTS[robot], c, {**effective_rates(ROBOTS[robot], c, gains), **(own.get(c) or {})}
+            )
             for c in names
         }
         for robot in robots

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import ptrack_gym  # noqa: F401  (registers the envs)
-from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, tuned_rates
+from agents.registry import CONTROLLER_NAMES, GAIN_CHOICES, check_rates, tuned_rates
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
 from train.common import arguments
@@ -141,13 +141,13 @@ class AdversaryConfig:
             robot = profile_for_env_id(self.env_id).name
             for c in self.controllers:
                 tuned_rates(robot, c)  # raises naming the missing file
-        if not isinstance(self.rates, dict) or not all(
-            c in self.controllers and isinstance(r, dict) and r for c, r in self.rates.items()
-        ):
+        if not isinstance(self.rates, dict) or any(c not in self.controllers for c in self.rates):
             raise InvalidConfigError(
                 f"rates must map searched controllers {self.controllers} to gain rates "
                 f"(name: value), got {self.rates!r}"
             )
+        for c, r in self.rates.items():
+            check_rates(profile_for_env_id(self.env_id), c, r, f"rates of {c}")
         bad = [f for f in self.families if f not in FAMILIES]
         if not self.families or bad:
             raise InvalidConfigError(
