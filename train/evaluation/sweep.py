@@ -37,6 +37,7 @@ from train.evaluation.episode import (
     Task,
     label,
     run_episode,
+    settings_kwargs,
 )
 from train.evaluation.rate_record import open_recorded_run, rate_record
 from train.evaluation.results import (
@@ -283,8 +284,9 @@ def finish(
         from train.evaluation.video import record_episode
 
         dist, level, seed, episode = _example_condition(cfg)
+        settings = cfg.settings()
         for ctrl in [c for c in cfg.controllers if not c.startswith(SB3_PREFIX)]:
-            record_episode(
+            record_episode(  # the sweep's path, sizing and gains (its own rates included)
                 cfg.env_id,
                 ctrl,
                 out / "videos" / ctrl,
@@ -295,5 +297,7 @@ def finish(
                     "disturbance": None if dist == "none" else (dist, level),
                     "horizon_s": cfg.episode_s,
                     "max_episode_steps": round(cfg.episode_s * cfg.control_hz),
+                    **settings_kwargs(settings),
                 },
+                gains=settings.controller_gains(ctrl, profile_for_env_id(cfg.env_id).name),
             )

@@ -49,9 +49,11 @@ def record_episode(
     seed: int,
     env_kwargs: dict[str, Any],
     fps: int = 30,
+    gains: Any = None,
 ) -> Path:
-    """Record one episode of ``controller`` on ``env_id`` as ``folder/<controller>-episode-0.mp4``
-    (seeded like the sweep's example episode)."""
+    """Record one episode of ``controller`` (with ``gains``, as ``make_controller`` takes
+    them) on ``env_id`` as ``folder/<controller>-episode-0.mp4`` (seeded like the sweep's
+    example episode)."""
     env = gym.make(env_id, render_mode="rgb_array", **env_kwargs)
     every = max(round(1.0 / (env.unwrapped.dt * fps)), 1)
     real_fps = round(1.0 / (env.unwrapped.dt * every))
@@ -63,7 +65,7 @@ def record_episode(
         fps=real_fps,
         disable_logger=True,
     )
-    policy = ControllerPolicy(wrapped, make_controller(controller, wrapped))
+    policy = ControllerPolicy(wrapped, make_controller(controller, wrapped, gains))
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*render.*has just been called.*")
         obs, _ = wrapped.reset(seed=seed)
