@@ -239,6 +239,38 @@ def test_residuals_over_tuned_bases_are_compared_with_the_tuned_controllers(
         discover(root)
 
 
+def test_residuals_pinned_at_other_rates_are_compared_with_the_base_as_pinned(
+    study: Path, tmp_path: Path
+) -> None:
+    """A residual whose base's rates have moved since it trained (a new default) is compared
+    with its base at the rates it pinned: the base alone runs at them (``controller_rates``)
+    and no mismatch is warned; residuals over one base that pinned different rates are
+    refused; a study at today's rates sets none."""
+    from agents.registry import pinned_rates
+    from ptrack_gym.robots import robot_profile
+
+    old = {**pinned_rates(robot_profile("two_link"), "passivity", "default"), "omega": 17.0}
+    root = tmp_path / "moved"
+    for name in ("residual-passivity_s0", "residual-passivity_s1"):
+        shutil.copytree(study / "residual-passivity_s0", root / name)
+        cfg_file = root / name / "config.yml"
+        cfg = yaml.safe_load(cfg_file.read_text())
+        cfg["derived"]["base_rates"] = old
+        cfg["config"]["seed"] = int(name[-1])
+        cfg_file.write_text(yaml.safe_dump(cfg))
+    curves = sweep_config(discover(root), 2, tmp_path / "out", 1)
+    assert curves.controller_rates == {"passivity": old}
+    assert curves.settings().controller_gains("passivity", "two_link")["omega"] == 17.0
+    assert curves.base_gain_mismatches() == []
+    assert sweep_config(discover(study), 2, tmp_path / "out", 1).controller_rates == {}
+    cfg_file = root / "residual-passivity_s1" / "config.yml"
+    cfg = yaml.safe_load(cfg_file.read_text())
+    cfg["derived"]["base_rates"] = {**old, "omega": 18.0}
+    cfg_file.write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InvalidConfigError, match="pinned different base rates"):
+        sweep_config(discover(root), 2, tmp_path / "out", 1)
+
+
 def test_a_pure_run_that_imitated_a_controller_is_compared_with_that_expert(
     study: Path, tmp_path: Path
 ) -> None:

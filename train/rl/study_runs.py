@@ -73,6 +73,9 @@ class Run:
     #: The last step count whose checkpoint holds the actor as initialised
     #: (:func:`actor_untrained_through`).
     untrained_through: float = -1
+    #: The rates its base ran at when it trained (``derived.base_rates``; None: a run
+    #: written before pins, or no model-based base).
+    base_rates: Mapping[str, Any] | None = None
 
 
 def actor_untrained_through(saved: dict) -> float:
@@ -150,6 +153,7 @@ def discover(root: Path) -> list[Run]:
                 checkpoints=tuple(steps),
                 config=c,
                 untrained_through=actor_untrained_through(cfg),
+                base_rates=(cfg.get("derived") or {}).get("base_rates"),
             )
         )
     if not runs:
@@ -206,6 +210,35 @@ def study_gains(runs: Sequence[Run]) -> str:
     return gains.pop() if gains else "default"
 
 
+def study_base_rates(runs: Sequence[Run], gains: str) -> dict[str, dict[str, Any]]:
+    """The ``controller_rates`` of a study's sweep: each base whose residual runs pinned rates
+    (``derived.base_rates``) other than those it runs today at ``gains`` — a retune or a new
+    default since they trained — runs alone at the pinned ones, so each residual is still
+    compared with the base it corrects. Runs written before pins take today's rates.
+
+    Raises:
+        InvalidConfigError: runs over one base that pinned different rates.
+    """
+    from agents.registry import still_pinned
+    from ptrack_gym.robots import profile_for_env_id
+
+    pins: dict[str, list[dict[str, Any]]] = {}
+    for r in runs:
+        if r.base not in ("none", NETWORK_BASE) and r.base_rates:
+            pins.setdefault(r.base, []).append(dict(r.base_rates))
+    own = {}
+    for base, pinned in pins.items():
+        if any(p != pinned[0] for p in pinned):
+            raise InvalidConfigError(
+                f"the runs over {base} pinned different base rates: "
+                f"{sorted(map(str, {tuple(sorted(p.items())) for p in pinned}))}"
+            )
+        profile = profile_for_env_id(str(runs[0].config["env_id"]))
+        if not still_pinned(profile, base, gains, pinned[0]):
+            own[base] = pinned[0]
+    return own
+
+
 def reference_of(run: Run) -> str:
     """The controller a run is compared with: its base (a network base: its model,
     ``sb3:<base_model>``); for pure RL the controller it imitated (``imitate``), else
@@ -258,6 +291,7 @@ def sweep_config(
         start=str(first["start"]),
         reference=baselines[0],
         gains=study_gains(runs),
+        controller_rates=study_base_rates(runs, study_gains(runs)),
         workers=workers,
         out=str(out),
         plots=False,
