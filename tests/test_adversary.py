@@ -225,8 +225,9 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
         ("families=[periodic];frequency_hz=[1.0, 1.0]", "frequency_hz .* empty search range"),
         ("gains=fancy", "gains"),
         ("rates={computed_torque: {omega: 3.0}}", "rates must map searched controllers"),
-        ("rates={pd_gravity: 3.0}", "rates must map searched controllers"),
+        ("rates={pd_gravity: 3.0}", "rates of pd_gravity: a non-empty mapping"),
         ("rates={pd_gravity: {no_such_rate: 1.0}}", "no_such_rate"),
+        ("rates={pd_gravity: {omega: -3.0}}", "kind"),
     ],
 )
 def test_bad_input_is_refused_before_any_episode(tmp_path, override, match, capsys) -> None:
