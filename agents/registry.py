@@ -160,20 +160,24 @@ def tuned_rates(robot: str, controller: str) -> dict[str, Any]:
     return dict(yaml.safe_load(path.read_text())["rates"])
 
 
-def pinned_rates(profile: RobotProfile, name: str, gains: str) -> dict[str, float]:
+def pinned_rates(
+    profile: RobotProfile, name: str, gains: str, over: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
     """The rates a residual run or a search pins for ``name`` on the robot of ``profile``
     with ``gains`` ("default" or "tuned"): every numeric rate of :func:`effective_rates`
     (the gains, not choices such as ``pump``) — a tuned file's rates *and* the defaults of
-    the rates it does not name — so neither a retune nor a new default can move them.
+    the rates it does not name — so neither a retune nor a new default can move them; with
+    a run's own rates ``over`` them (a search's ``rates``, a sweep's ``controller_rates``).
 
     Raises:
         InvalidConfigError: an unknown controller or gain choice, or no tuned gains.
     """
-    return {
+    pinned = {
         key: value
         for key, value in effective_rates(profile, name, check_gain_choice(gains)).items()
         if isinstance(value, (int, float)) and not isinstance(value, bool)
     }
+    return {**pinned, **dict(over or {})}
 
 
 def still_pinned(profile: RobotProfile, name: str, gains: str, rates: Mapping[str, Any]) -> bool:

@@ -300,4 +300,4 @@ def _runs_as_pinned(
 
     if not own:
         return still_pinned(profile, base, gains, pinned)
-    return dict(pinned) == {**pinned_rates(profile, base, gains), **dict(own)}
+    return dict(pinned) == pinned_rates(profile, base, gains, own)

@@ -241,12 +241,13 @@ def stale_search(folder: Path, cfg: dict[str, Any]) -> bool:
     profile = profile_for_env_id(cfg["env_id"])
     for controller, used in _cell_gains(folder).items():
         try:
-            today = pinned_rates(profile, controller, gains)
+            today = pinned_rates(
+                profile, controller, gains, (cfg.get("rates") or {}).get(controller)
+            )
         except InvalidConfigError:  # no tuned gains any more
             if any(isinstance(g, dict) for g in used):
                 return True
             continue
-        today.update((cfg.get("rates") or {}).get(controller) or {})
         if any(isinstance(g, dict) and g != today for g in used):
             return True
     return False

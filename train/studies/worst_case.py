@@ -255,13 +255,10 @@ def controller_gains(cfg: AdversaryConfig, controller: str) -> str | dict[str, A
     themselves (:func:`agents.registry.pinned_rates`: the tuned file's, or every numeric rate
     of the default), recorded in ``worst.yml`` so that a replay does not depend on a later
     tuning or a new default, with the config's ``rates`` for it over them."""
-    gains: str | dict[str, Any] = cfg.gains
-    if cfg.gains in GAIN_CHOICES:
-        gains = pinned_rates(profile_for_env_id(cfg.env_id), controller, cfg.gains)
     given = cfg.rates.get(controller)
-    if given:
-        gains = {**(gains if isinstance(gains, dict) else {}), **given}
-    return gains
+    if cfg.gains in GAIN_CHOICES:
+        return pinned_rates(profile_for_env_id(cfg.env_id), controller, cfg.gains, given)
+    return {**given} if given else cfg.gains
 
 
 def replay(
