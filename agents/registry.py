@@ -180,13 +180,19 @@ def pinned_rates(
     return {**pinned, **dict(over or {})}
 
 
-def still_pinned(profile: RobotProfile, name: str, gains: str, rates: Mapping[str, Any]) -> bool:
+def still_pinned(
+    profile: RobotProfile,
+    name: str,
+    gains: str,
+    rates: Mapping[str, Any],
+    over: Mapping[str, Any] | None = None,
+) -> bool:
     """Whether ``rates`` — pinned by :func:`pinned_rates` with ``gains`` when a run trained —
-    are still what ``name`` runs today with those gains (``False`` where the pair has no
-    tuned gains any more, or where a pin written before pins were complete — a tuned
-    file's rates alone — leaves a rate to a default)."""
+    are still what ``name`` runs today with those gains and a run's own rates ``over`` them
+    (``False`` where the pair has no tuned gains any more, or where a pin written before
+    pins were complete — a tuned file's rates alone — leaves a rate to a default)."""
     try:
-        return dict(rates) == pinned_rates(profile, name, gains)
+        return dict(rates) == pinned_rates(profile, name, gains, over)
     except InvalidConfigError:
         return False
 

@@ -193,6 +193,7 @@ class EvalConfig:
         this sweep, runs at other gains here than the residual was trained over (its run's
         ``base_gains``): an unfair pairing the sweep warns about (``ptrack study`` builds
         its sweeps with the runs' own gains)."""
+        from agents.registry import still_pinned
         from ptrack_gym.robots import robot_profile
         from train.evaluation.policies import run_config, sb3_files
 
@@ -210,7 +211,7 @@ class EvalConfig:
                     f"{c} was trained over {base} at {gains} gains; {base} alone runs here at "
                     f"{self.gains} gains (the residual keeps its own base's)"
                 )
-            elif pinned and not _runs_as_pinned(
+            elif pinned and not still_pinned(
                 robot_profile(self._robot), base, gains, pinned, self.controller_rates.get(base)
             ):
                 since = "retuned" if gains == "tuned" else "changed"
@@ -289,15 +290,3 @@ def check_controller_rates(
                 f"controller_rates: {c!r} is not a model-based controller of the sweep"
             )
         check_rates(profile, c, rates, f"controller_rates of {c}")
-
-
-def _runs_as_pinned(
-    profile: Any, base: str, gains: str, pinned: Mapping[str, Any], own: Any = None
-) -> bool:
-    """Whether ``base`` alone runs here (``gains``, the sweep's own rates ``own`` over them)
-    at the rates a residual pinned for it."""
-    from agents.registry import pinned_rates, still_pinned
-
-    if not own:
-        return still_pinned(profile, base, gains, pinned)
-    return dict(pinned) == pinned_rates(profile, base, gains, own)

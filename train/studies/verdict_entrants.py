@@ -81,7 +81,8 @@ def check_entrants(
             if not (isinstance(name, str) and name.startswith(SB3_PREFIX)):
                 raise InvalidConfigError(f"entrants of {robot}: {name!r} is not sb3:<run folder>")
             check_sb3_run(name, ROBOTS[robot].env_id)
-            c = _run_config(name)
+            run = _run(name)
+            c = run["config"]
             seen = {int(p) for key in ("train_paths", "eval_paths") for p in c.get(key) or []}
             shared = sorted(seen & set(test_paths))
             if shared:
@@ -101,7 +102,7 @@ def check_entrants(
                     f"{gains}: compare an entrant with the controller it was built on"
                 )
             residual = c["residual"] not in ("none", "network")
-            pinned = (_run(name).get("derived") or {}).get("base_rates") if residual else None
+            pinned = (run.get("derived") or {}).get("base_rates") if residual else None
             if pinned and not still_pinned(ROBOTS[robot], c["residual"], gains, pinned):
                 raise InvalidConfigError(
                     f"{name}'s base ran at {gains} rates since changed ({pinned}); the "
