@@ -212,7 +212,7 @@ def test_sigterm_is_an_interruption_while_a_run_trains_only() -> None:
     it the previous handler is back (an idle campaign worker exits quietly)."""
     import signal
 
-    from train.rl.run import sigterm_as_interrupt
+    from train.common.signals import sigterm_as_interrupt
 
     previous = signal.getsignal(signal.SIGTERM)
     with pytest.raises(KeyboardInterrupt), sigterm_as_interrupt():

@@ -172,9 +172,10 @@ def _train_parser(p: argparse.ArgumentParser) -> None:
 
 
 def _train(args: argparse.Namespace, p: argparse.ArgumentParser) -> int:
+    from train.common.signals import sigterm_as_interrupt
     from train.rl.config import from_args
     from train.rl.config import to_argv as train_argv
-    from train.rl.run import run, sigterm_as_interrupt
+    from train.rl.run import run
 
     cfg = from_args(args)  # on --resume, what was not given comes from the run
     source = f"--config {args.config}" if args.config else "no --config: TrainConfig's defaults"

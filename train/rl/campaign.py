@@ -41,10 +41,10 @@ from typing import Any
 import yaml
 
 from ptrack_gym.errors import InvalidConfigError
+from train.common.signals import sigterm_as_interrupt
 from train.rl.checkpoints import latest_checkpoint
 from train.rl.config import TrainConfig, validate
 from train.rl.hyperparameters import TrainConfigError
-from train.rl.run import sigterm_as_interrupt
 
 _CONFIG_KEYS = {"seeds", "common", "groups"}
 
@@ -117,7 +117,7 @@ def _train_one(cfg: TrainConfig) -> tuple[str, str | None]:
     """Train one run; its ``command.txt`` records the standalone ``ptrack train``
     command of this invocation (:func:`train.rl.config.to_argv`)."""
     from train.rl.config import to_argv
-    from train.rl.run import run, sigterm_as_interrupt
+    from train.rl.run import run
 
     if cfg.progress_bar is None:  # the workers share one terminal: no bars unless asked
         cfg = replace(cfg, progress_bar=False)

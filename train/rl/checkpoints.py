@@ -3,7 +3,9 @@
 Files in ``<run>/checkpoints/``: ``rl_model_<steps>_steps.zip`` (SB3's
 ``CheckpointCallback``), the matching ``rl_model_vecnormalize_<steps>_steps.pkl`` and, for
 the newest checkpoint only, ``rl_model_replay_buffer_<steps>_steps.pkl``. The final state is
-always saved there too, so ``--resume`` continues any finished or interrupted run.
+always saved there too, so ``--resume`` continues any finished or interrupted run. Every
+save here runs :func:`~train.common.signals.uninterrupted`: Ctrl-C or SIGTERM during one
+is delivered once the files are whole.
 """
 
 from __future__ import annotations
@@ -11,12 +13,13 @@ from __future__ import annotations
 from pathlib import Path
 
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import CheckpointCallback
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from train.common.checkpoint_files import CHECKPOINT_PREFIX, latest_checkpoint
 from train.common.checkpoint_files import REPLAY_RE as _REPLAY_RE
+from train.common.signals import uninterrupted
 from train.rl.hyperparameters import TrainConfigError
 
 
@@ -33,13 +36,31 @@ def prune_replay_buffers(folder: Path, keep_steps: int) -> None:
 
 
 class PruningCheckpointCallback(CheckpointCallback):
-    """SB3's CheckpointCallback that keeps only the newest replay buffer."""
+    """SB3's CheckpointCallback that keeps only the newest replay buffer and saves
+    uninterrupted (a checkpoint is never left half-written by Ctrl-C or SIGTERM)."""
 
     def _on_step(self) -> bool:
-        result = super()._on_step()
-        if self.n_calls % self.save_freq == 0 and self.save_replay_buffer:
-            prune_replay_buffers(Path(self.save_path), self.num_timesteps)
+        if self.n_calls % self.save_freq != 0:
+            return super()._on_step()  # nothing to save at this step
+        with uninterrupted():
+            result = super()._on_step()
+            if self.save_replay_buffer:
+                prune_replay_buffers(Path(self.save_path), self.num_timesteps)
         return result
+
+
+class SaveBestModel(BaseCallback):
+    """``EvalCallback``'s ``callback_on_new_best``: writes ``best_model.zip`` uninterrupted
+    (in place of the EvalCallback's own save, which a signal could cut short)."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__()
+        self.path = path
+
+    def _on_step(self) -> bool:
+        with uninterrupted():
+            self.model.save(self.path)
+        return True
 
 
 def save_checkpoint(
@@ -47,26 +68,29 @@ def save_checkpoint(
 ) -> Path:
     """``checkpoints/rl_model_<steps>_steps.zip`` and its VecNormalize statistics; with
     ``replay_buffer``, an off-policy model's replay buffer too (older ones pruned). Returns
-    the checkpoint folder."""
+    the checkpoint folder. Uninterrupted."""
     steps = model.num_timesteps
     ckpt = run_dir / "checkpoints"
     ckpt.mkdir(parents=True, exist_ok=True)
-    model.save(ckpt / f"{CHECKPOINT_PREFIX}_{steps}_steps.zip")
-    if replay_buffer and isinstance(model, OffPolicyAlgorithm):
-        model.save_replay_buffer(ckpt / f"{CHECKPOINT_PREFIX}_replay_buffer_{steps}_steps.pkl")
-        prune_replay_buffers(ckpt, steps)
-    if isinstance(train_env, VecNormalize):
-        train_env.save(str(ckpt / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"))
+    with uninterrupted():
+        model.save(ckpt / f"{CHECKPOINT_PREFIX}_{steps}_steps.zip")
+        if replay_buffer and isinstance(model, OffPolicyAlgorithm):
+            path = ckpt / f"{CHECKPOINT_PREFIX}_replay_buffer_{steps}_steps.pkl"
+            model.save_replay_buffer(path)
+            prune_replay_buffers(ckpt, steps)
+        if isinstance(train_env, VecNormalize):
+            train_env.save(str(ckpt / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"))
     return ckpt
 
 
 def save_final(model: BaseAlgorithm, train_env: VecEnv, run_dir: Path) -> None:
     """model.zip / vecnormalize.pkl, and the same state as a checkpoint for --resume
-    (with the replay buffer of an off-policy model)."""
-    model.save(run_dir / "model.zip")
-    save_checkpoint(model, train_env, run_dir)
-    if isinstance(train_env, VecNormalize):
-        train_env.save(str(run_dir / "vecnormalize.pkl"))
+    (with the replay buffer of an off-policy model); uninterrupted."""
+    with uninterrupted():
+        model.save(run_dir / "model.zip")
+        save_checkpoint(model, train_env, run_dir)
+        if isinstance(train_env, VecNormalize):
+            train_env.save(str(run_dir / "vecnormalize.pkl"))
 
 
 def load_checkpoint(

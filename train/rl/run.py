@@ -32,15 +32,13 @@ SB3's progress bar is on when standard output is a terminal (``--progress-bar``,
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import platform
 import shlex
 import shutil
-import signal
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from functools import partial
 from importlib import metadata
 from pathlib import Path
@@ -72,6 +70,7 @@ from train.rl.actor import (
 from train.rl.checkpoints import (
     CHECKPOINT_PREFIX,
     PruningCheckpointCallback,
+    SaveBestModel,
     latest_checkpoint,
     load_checkpoint,
     save_checkpoint,
@@ -419,7 +418,8 @@ def _callbacks(
                 eval_env,
                 n_eval_episodes=cfg.eval_episodes,
                 eval_freq=max(cfg.eval_freq // res.n_envs, 1),
-                best_model_save_path=str(run_dir),
+                # best_model.zip written by SaveBestModel, uninterrupted
+                callback_on_new_best=SaveBestModel(run_dir / "best_model.zip"),
                 log_path=str(run_dir / "eval" / session),
                 deterministic=True,
                 verbose=cfg.verbose,
@@ -453,7 +453,7 @@ def _train(res: Resolved, run_dir: Path, started: list[BaseAlgorithm]) -> BaseAl
                 progress_bar=progress_bar_on(cfg),
             )
         except KeyboardInterrupt:
-            # Ctrl-C (or SIGTERM, see sigterm_as_interrupt): keep every step taken, as
+            # Ctrl-C (or SIGTERM, see train.common.signals): keep every step taken, as
             # rl-zoo3 does — model.zip and a checkpoint at this step; --resume goes on.
             save_final(model, train_env, run_dir)
             raise
@@ -462,24 +462,3 @@ def _train(res: Resolved, run_dir: Path, started: list[BaseAlgorithm]) -> BaseAl
         train_env.close()
         eval_env.close()
     return model
-
-
-@contextlib.contextmanager
-def sigterm_as_interrupt() -> Iterator[None]:
-    """Within the block, SIGTERM raises ``KeyboardInterrupt`` in this process (enter it
-    from the main thread), so a run terminated while it trains saves its state as an
-    interrupted one does: the CLI and the campaign's worker processes (which
-    ``Pool.terminate`` stops with SIGTERM). The previous handler is restored on exit — an
-    idle worker terminated after its run then exits quietly."""
-
-    def _raise(signum: int, frame: Any) -> None:
-        # One-shot: a second SIGTERM (Pool.terminate's, after a signal to the whole process
-        # group) is ignored, so it cannot cut the save it started short.
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        raise KeyboardInterrupt(f"signal {signum}")
-
-    previous = signal.signal(signal.SIGTERM, _raise)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
