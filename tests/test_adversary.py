@@ -202,6 +202,92 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
     )
 
 
+def test_further_local_runs_start_in_other_basins_and_resume_onto_a_search(
+    search, tmp_path
+) -> None:
+    """``polish_starts`` added on resume: the episodes run are kept, and each seed's second
+    local run starts from the worst episode lying in no basin the first one started in or
+    reached — not the worst episode — and runs its budget from there."""
+    import shutil
+
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    from train.studies.adversary import study_name
+    from train.studies.worst_case import Searchable
+
+    out = tmp_path / "more"
+    shutil.copytree(search, out)
+    cfg = load_config(None, [*TINY, "budget=16", "polish_starts=2", f"out={out}"])
+    run_search(cfg, resume=True, progress=False)
+    df = pd.read_csv(out / "trials.csv", float_precision="round_trip")
+    assert len(df) == 2 * 40 and sorted(df["run"].unique())[:2] == ["polish", "polish1"]
+    first = pd.read_csv(search / "trials.csv", float_precision="round_trip")
+    key = ["seed", "run", "trial"]
+    kept = df.merge(first[key], on=key).sort_values(key).reset_index(drop=True)
+    pd.testing.assert_series_equal(
+        kept["cost_rad"], first.sort_values(key).reset_index(drop=True)["cost_rad"]
+    )
+    storage = JournalStorage(JournalFileBackend(str(out / "optuna.journal")))
+    target = Searchable(cfg, "impulse", 0.6)
+
+    def trials(kind: str, seed: int) -> list:
+        name = study_name("pd_gravity", "impulse", 0.6, kind, seed)
+        return optuna.load_study(study_name=name, storage=storage).trials
+
+    def basin(a, b) -> bool:
+        return target.same_basin(
+            a.user_attrs["spec"],
+            a.user_attrs.get("s0"),
+            b.user_attrs["spec"],
+            b.user_attrs.get("s0"),
+        )
+
+    for seed in (0, 1):
+        before = [t for k in ("random", "search0", "search1", "polish") for t in trials(k, seed)]
+        local = trials("polish", seed)
+        anchors = [local[0], max(local, key=lambda t: t.value)]
+        outside = [t for t in before if not any(basin(t, a) for a in anchors)]
+        second = trials("polish1", seed)
+        assert outside and len(second) == 4
+        assert second[0].params == max(outside, key=lambda t: t.value).params
+        assert not any(basin(second[0], a) for a in anchors)
+    assert "2 local runs of 4" in (out / "summary.md").read_text()
+
+
+def test_episodes_share_a_basin_by_direction_path_phase_and_frequency() -> None:
+    import math
+
+    from ptrack_gym.robots import robot_profile
+    from train.studies.worst_case import BASIN_ANGLE, BASIN_PHASE, Searchable
+
+    cfg = load_config(None, TINY)
+    period = robot_profile("two_link").path_period_s
+    pulse = Searchable(cfg, "impulse", 0.6)
+    a = {"onset_s": 1.0, "direction": [1.0, 0.0]}
+
+    def turned(angle: float) -> list[float]:
+        return [math.cos(angle), math.sin(angle)]
+
+    assert pulse.same_basin(a, 0.0, a, 0.0)
+    assert pulse.same_basin(a, 0.0, {**a, "direction": turned(0.9 * BASIN_ANGLE)}, 0.0)
+    assert not pulse.same_basin(a, 0.0, {**a, "direction": turned(1.1 * BASIN_ANGLE)}, 0.0)
+    assert not pulse.same_basin(a, 0.0, {**a, "direction": [-1.0, 0.0]}, 0.0)
+    # the path phase at the onset, (s0 + onset) mod S, wrapping; not the split between them
+    assert pulse.same_basin(a, 0.0, {**a, "onset_s": 0.5}, 0.5)
+    near, far = 0.9 * BASIN_PHASE * period, 1.1 * BASIN_PHASE * period
+    assert pulse.same_basin(a, 0.0, a, period - near)  # across the seam of the period
+    assert not pulse.same_basin(a, 0.0, a, far)
+    assert not pulse.same_basin(a, 0.0, a, period - far)
+    assert not pulse.same_basin(a, None, {**a, "link": "link2"}, None)  # another link
+    wave = Searchable(cfg, "periodic", 0.6)
+    f = {"frequency_hz": 2.0, "direction": [0.0, 1.0]}
+    assert wave.same_basin(f, 0.0, {**f, "frequency_hz": 2.9}, 5.0)  # the phase is free
+    assert not wave.same_basin(f, 0.0, {**f, "frequency_hz": 3.1}, 0.0)
+    assert not wave.same_basin(f, 0.0, {**f, "frequency_hz": 1.3}, 0.0)
+
+
 @pytest.mark.parametrize(
     ("override", "match"),
     [
@@ -218,6 +304,7 @@ def test_search_resumes_to_its_budget_without_repeating(search, tmp_path) -> Non
         ("search_seeds=[1, 1]", "search_seeds"),
         ("restarts=3", "restarts"),
         ("polish_budget=3", "polish_budget must be 0 or an integer >= popsize"),
+        ("polish_starts=0", "polish_starts must be an integer >= 1"),
         ("polish_sigma=0", "polish_sigma"),  # 10 episodes over 4 runs: fewer than a population each
         ("space=cube", "space"),
         # an empty search space: a box onset range of zero width, a single frequency

@@ -41,6 +41,7 @@ from __future__ import annotations
 import dataclasses
 import time
 import warnings
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -79,16 +80,18 @@ __all__ = [
 
 def study_name(controller: str, family: str, energy_j: float, kind: str, seed: int) -> str:
     """``<controller>|<family>|<energy>|<kind>|seed<k>``, kind "random", "search<r>" (the
-    r-th CMA-ES run, r restarts in) or "polish" (the local run)."""
+    r-th CMA-ES run, r restarts in), "polish" (the local run) or "polish<k>" (the k-th
+    further local run, from another basin)."""
     return f"{controller}|{family}|{energy_j:g}|{kind}|seed{seed}"
 
 
 def kinds(cfg: AdversaryConfig, family: str) -> list[str]:
     """The studies of one seed, in the order they run: the random draws, a periodic
     torque's frequency scan (where ``scan_points`` > 0), each global CMA-ES run, then the
-    local one (where ``polish_budget`` > 0)."""
+    local ones (``polish_starts`` of them, where ``polish_budget`` > 0)."""
     scan = ["scan"] if cfg.scan_points > 0 and family == "periodic" else []
-    local = ["polish"] if cfg.polish_budget > 0 else []
+    local = ["polish", *(f"polish{k}" for k in range(1, cfg.polish_starts))]
+    local = local if cfg.polish_budget > 0 else []
     return ["random", *scan, *(f"search{r}" for r in range(cfg.restarts + 1)), *local]
 
 
@@ -99,7 +102,7 @@ def run_budget(cfg: AdversaryConfig, kind: str, n: int = 0) -> int:
     scan_phase_top for its second stage (n joints)."""
     if kind == "random":
         return cfg.budget
-    if kind == "polish":
+    if kind.startswith("polish"):
         return cfg.polish_budget
     if kind == "scan":
         per_stage = cfg.scan_phases * n + 1 + cfg.scan_phase_refine * n
@@ -114,7 +117,7 @@ def run_budget(cfg: AdversaryConfig, kind: str, n: int = 0) -> int:
 #: What a search's settings were before its ``config.yml`` recorded them (compared on resume).
 SETTINGS_BEFORE = {
     "space": "box", "restarts": 0, "scan_points": 0, "scan_phases": 0, "scan_refine": 0,
-    "scan_phase_top": 1, "scan_phase_refine": 0, "rates": {},
+    "scan_phase_top": 1, "scan_phase_refine": 0, "rates": {}, "polish_starts": 1,
 }  # fmt: skip
 
 
@@ -138,8 +141,8 @@ def run_search(
     run = open_run(
         cfg.out, "optuna.journal", {**_config_dict(cfg), RAN_AT_KEY: ran_at},
         resume=resume, force=force,
-        # a resume may extend the budget (each run grows) or add or extend the local run
-        free=("workers", "out", "budget", "polish_budget"),
+        # a resume may extend the budget (each run grows) or add or extend the local runs
+        free=("workers", "out", "budget", "polish_budget", "polish_starts"),
         saved_required=False,
         defaults=SETTINGS_BEFORE,  # a search saved before a setting existed ran with these
     )  # fmt: skip
@@ -184,18 +187,32 @@ def _run_study(ctx: _Context, controller: str, target: Searchable, kind: str, se
         # unstable for the passivity controller at 2 J on the iiwa). Each restart doubles
         # the population (IPOP's schedule).
         order = kinds(cfg, target.family)
+        local_runs = []  # the trials of each earlier local run
         for earlier in order[: order.index(kind)]:
-            source += optuna.load_study(
+            trials = optuna.load_study(
                 study_name=study_name(controller, target.family, target.energy_j, earlier, seed),
                 storage=storage,
             ).get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
+            source += trials
+            if earlier.startswith("polish"):
+                local_runs.append(trials)
+        start = max(source, key=lambda t: t.value) if source else None
+        if kind.startswith("polish"):
+            start = local_start(target, source, local_runs)
+            if start is None:  # every episode lies in a basin a local run searched
+                skipped = optuna.create_study(
+                    study_name=name, storage=storage, direction="maximize", load_if_exists=True
+                )
+                skipped.set_user_attr("skipped", "no episode outside the searched basins")
+                return
         with warnings.catch_warnings():  # source_trials is "experimental" in Optuna 4-5,
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
             warnings.simplefilter("ignore", FutureWarning)  # x0 and sigma0 deprecated in 4.9
-            if kind == "polish":  # local: at the worst so far, small steps
+            if kind.startswith("polish"):  # local: at the start, small steps
+                k = int(kind.removeprefix("polish") or 0)
                 sampler = optuna.samplers.CmaEsSampler(
-                    x0=max(source, key=lambda t: t.value).params, sigma0=cfg.polish_sigma,
-                    popsize=cfg.popsize, seed=_draw_seed(seed, POLISH_STREAM),
+                    x0=start.params, sigma0=cfg.polish_sigma,  # type: ignore[union-attr]
+                    popsize=cfg.popsize, seed=_draw_seed(seed, POLISH_STREAM + k),
                     warn_independent_sampling=False,
                 )  # fmt: skip
             else:
@@ -217,9 +234,10 @@ def _run_study(ctx: _Context, controller: str, target: Searchable, kind: str, se
         study.tell(stale.number, state=optuna.trial.TrialState.FAIL)
     complete = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
     if kind != "random" and cfg.space != "box" and not study.get_trials(deepcopy=False) and source:
-        # the run's first episode is the worst one so far: a search never ends below where
-        # it started (the worst searched >= the worst random draw)
-        study.enqueue_trial(max(source, key=lambda t: t.value).params)
+        # the run's first episode is its start, for a global run the worst one so far: a
+        # search never ends below where it started (the worst searched >= the worst random
+        # draw)
+        study.enqueue_trial(start.params)  # type: ignore[union-attr]
     done = len(complete)
     wall_s = float(study.user_attrs.get("wall_s", 0.0))  # summed over batches: resume-safe
     restart = int(kind.removeprefix("search")) if kind.startswith("search") else 0
@@ -230,7 +248,7 @@ def _run_study(ctx: _Context, controller: str, target: Searchable, kind: str, se
         # Optuna's CMA-ES learns the search space from a completed trial of its own study: a
         # generation asked before any is told is drawn independently (at random). The local
         # run therefore runs its first episode (the worst so far) alone.
-        size = 1 if kind == "polish" and done == 0 else min(popsize, budget - done)
+        size = 1 if kind.startswith("polish") and done == 0 else min(popsize, budget - done)
         for i in range(size):
             if kind == "random":  # the k-th draw is a function of (seed, k): resume-safe
                 study.sampler = optuna.samplers.RandomSampler(seed=_draw_seed(seed, 1, done + i))
@@ -251,6 +269,31 @@ def _run_study(ctx: _Context, controller: str, target: Searchable, kind: str, se
         study.set_user_attr("wall_s", wall_s)
         if progress:
             print(f"{name}: {done}/{budget}, worst {study.best_value:.3g} rad", flush=True)
+
+
+def _skipped(optuna: Any, storage: Any, cfg: AdversaryConfig) -> int:
+    """How many further local runs found no episode outside the basins searched."""
+    return sum(
+        "skipped" in optuna.load_study(study_name=name, storage=storage).user_attrs
+        for name in optuna.get_all_study_names(storage)
+        if name.split("|")[3].startswith("polish") and name.split("|")[3] != "polish"
+    )
+
+
+def local_start(target: Searchable, source: Sequence[Any], local_runs: Sequence[Any]) -> Any:
+    """The episode a local run starts from: the worst of ``source`` (the seed's episodes so
+    far) in a basin where no earlier local run (``local_runs``: each one's trials) started
+    or found its worst (:meth:`~train.studies.worst_case.Searchable.same_basin`); None when
+    there is none. The first local run starts from the worst episode."""
+    anchors = [t for run in local_runs if run for t in (run[0], max(run, key=lambda t: t.value))]
+    for trial in sorted(source, key=lambda t: t.value, reverse=True):
+        a = trial.user_attrs
+        if not any(
+            target.same_basin(a["spec"], a.get("s0"), b.user_attrs["spec"], b.user_attrs.get("s0"))
+            for b in anchors
+        ):
+            return trial
+    return None
 
 
 def _tell(
@@ -396,8 +439,15 @@ def _write_results(optuna: Any, storage: Any, cfg: AdversaryConfig, out: Path) -
         f"({cfg.search_seeds}) {cfg.budget} random + {cfg.budget} searched episodes "
         f"({cfg.restarts + 1} CMA-ES runs, population {cfg.popsize} doubling)"
         + (
-            f" + {cfg.polish_budget} of a local run (step {cfg.polish_sigma:g} of each range, "
-            "from the worst so far)"
+            (
+                f" + {cfg.polish_budget} of a local run (step {cfg.polish_sigma:g} of each range, "
+                "from the worst so far)"
+                if cfg.polish_starts == 1
+                else f" + {cfg.polish_starts} local runs of {cfg.polish_budget} (step "
+                f"{cfg.polish_sigma:g} of each range; the first from the worst so far, each "
+                "further one from the worst in a basin none before started in or reached; "
+                f"{_skipped(optuna, storage, cfg)} found none)"
+            )
             if cfg.polish_budget
             else ""
         )

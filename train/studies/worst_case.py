@@ -48,6 +48,15 @@ def is_wrapping(name: str) -> bool:
     return name in ("start_phase", "onset_phase") or (name[:1] == "a" and name[1:].isdigit())
 
 
+#: Two episodes of a search lie in one basin (:meth:`Searchable.same_basin`) when their
+#: directions are within this angle (rad) of each other and their disturbances meet the
+#: path within :data:`BASIN_PHASE` of a period (a pulse) or within a factor
+#: :data:`BASIN_FREQUENCY` in frequency (a periodic torque), on the same link.
+BASIN_ANGLE = math.pi / 4
+BASIN_PHASE = 1.0 / 16.0
+BASIN_FREQUENCY = 1.5
+
+
 @dataclass(frozen=True)
 class Searchable:
     """One family at one energy on one robot: its parameters, their spec, its cost window."""
@@ -142,6 +151,27 @@ class Searchable:
             "type": "periodic", "energy_j": self.energy_j,
             "frequency_hz": float(params["frequency_hz"]), "direction": direction,
         }  # fmt: skip
+
+    def same_basin(
+        self, a: dict[str, Any], a_s0: float | None, b: dict[str, Any], b_s0: float | None
+    ) -> bool:
+        """Whether two episodes (specs and start phases s0, s) push the arm the same way at
+        the same point: directions within :data:`BASIN_ANGLE`, the same link, and a pulse's
+        path phase at its onset, (s0 + onset) mod S, within :data:`BASIN_PHASE` of a period S
+        of each other (wrapping), or periodic frequencies within a factor
+        :data:`BASIN_FREQUENCY`. A local search started in one basin stays in it, so a
+        second local run starts from the worst episode of another
+        (:func:`train.studies.adversary.kinds`)."""
+        da, db = np.asarray(a["direction"], float), np.asarray(b["direction"], float)
+        cos = float(da @ db / (np.linalg.norm(da) * np.linalg.norm(db)))
+        if math.acos(min(1.0, max(-1.0, cos))) >= BASIN_ANGLE or a.get("link") != b.get("link"):
+            return False
+        if self.family == "periodic":
+            ratio = a["frequency_hz"] / b["frequency_hz"]
+            return 1.0 / BASIN_FREQUENCY < ratio < BASIN_FREQUENCY
+        period = self.period_s
+        gap = ((a_s0 or 0.0) + a["onset_s"] - (b_s0 or 0.0) - b["onset_s"]) % period / period
+        return min(gap, 1.0 - gap) < BASIN_PHASE
 
     def window(self, spec: dict[str, Any]) -> tuple[float, float]:
         """The cost window (s) of a spec."""
