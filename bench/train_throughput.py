@@ -44,6 +44,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 from stable_baselines3 import SAC
+from stable_baselines3.common.logger import Logger
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -74,7 +75,9 @@ def make(
 
 def timed_learn(model: Any, untimed: int, steps: int) -> float:
     """Seconds of ``model.learn(steps)`` after an untimed ``model.learn(untimed)`` (the
-    buffer fill and first updates, which are not the steady rate)."""
+    buffer fill and first updates, which are not the steady rate). Logs nowhere (SB3's
+    default logger would leave a ``/tmp/SB3-<date>`` folder per model)."""
+    model.set_logger(Logger(folder=None, output_formats=[]))
     model.learn(total_timesteps=untimed)
     t0 = time.perf_counter()
     model.learn(total_timesteps=steps, reset_num_timesteps=False)

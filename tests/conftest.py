@@ -13,6 +13,17 @@ import pytest
 import ptrack_gym  # noqa: F401  (registers the environment ids)
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _sb3_logs_in_pytests_tmp(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """A model trained without a logger of its own (``model.learn`` in a test) writes SB3's
+    default log folder under pytest's temporary directory, not a new ``/tmp/SB3-<date>``
+    per model (they were left behind by every run of the suite)."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3_logs")))
+    yield
+    mp.undo()
+
+
 class EnvFactory:
     """Makes environments with ``gym.make`` and remembers them, so a fixture can close them.
 
