@@ -206,8 +206,10 @@ def test_further_local_runs_start_in_other_basins_and_resume_onto_a_search(
     search, tmp_path
 ) -> None:
     """``polish_starts`` added on resume: the episodes run are kept, and each seed's second
-    local run starts from the worst episode lying in no basin the first one started in or
-    reached — not the worst episode — and runs its budget from there."""
+    local run starts from the worst random draw lying in no basin the first local run
+    started in or reached — not from the worst episode — and runs its budget from there.
+    Its start is kept on its study: a resume that extends the budgets (and so moves the
+    worst episodes) goes on from the same start."""
     import shutil
 
     import optuna
@@ -232,28 +234,35 @@ def test_further_local_runs_start_in_other_basins_and_resume_onto_a_search(
     storage = JournalStorage(JournalFileBackend(str(out / "optuna.journal")))
     target = Searchable(cfg, "impulse", 0.6)
 
-    def trials(kind: str, seed: int) -> list:
+    def study(kind: str, seed: int):  # type: ignore[no-untyped-def]
         name = study_name("pd_gravity", "impulse", 0.6, kind, seed)
-        return optuna.load_study(study_name=name, storage=storage).trials
+        return optuna.load_study(study_name=name, storage=storage)
 
-    def basin(a, b) -> bool:
-        return target.same_basin(
-            a.user_attrs["spec"],
-            a.user_attrs.get("s0"),
-            b.user_attrs["spec"],
-            b.user_attrs.get("s0"),
-        )
+    def basin(t, spec, s0) -> bool:  # type: ignore[no-untyped-def]
+        return target.same_basin(t.user_attrs["spec"], t.user_attrs.get("s0"), spec, s0)
 
+    starts = {}
     for seed in (0, 1):
-        before = [t for k in ("random", "search0", "search1", "polish") for t in trials(k, seed)]
-        local = trials("polish", seed)
-        anchors = [local[0], max(local, key=lambda t: t.value)]
-        outside = [t for t in before if not any(basin(t, a) for a in anchors)]
-        second = trials("polish1", seed)
-        assert outside and len(second) == 4
-        assert second[0].params == max(outside, key=lambda t: t.value).params
-        assert not any(basin(second[0], a) for a in anchors)
+        random, local = study("random", seed).trials, study("polish", seed).trials
+        worst_local = max(local, key=lambda t: t.value)
+        assert study("polish", seed).user_attrs["start"]["params"] == local[0].params
+        anchors = [(t.user_attrs["spec"], t.user_attrs.get("s0")) for t in (local[0], worst_local)]
+        outside = [t for t in random if not any(basin(t, *a) for a in anchors)]
+        second = study("polish1", seed)
+        assert outside and len(second.trials) == 4
+        expected = max(outside, key=lambda t: t.value)
+        assert second.trials[0].params == expected.params == second.user_attrs["start"]["params"]
+        assert expected.value < max(t.value for t in random + local)  # not the worst so far
+        starts[seed] = second.user_attrs["start"]
     assert "2 local runs of 4" in (out / "summary.md").read_text()
+    # more budget: more random draws and longer runs, the local runs' starts as they were
+    more = load_config(None, [*TINY, "budget=20", "polish_budget=8", "polish_starts=2",
+                              f"out={out}"])  # fmt: skip
+    run_search(more, resume=True, progress=False)
+    for seed in (0, 1):
+        second = study("polish1", seed)
+        assert second.user_attrs["start"] == starts[seed] and len(second.trials) == 8
+        assert second.trials[0].params == starts[seed]["params"]
 
 
 def test_episodes_share_a_basin_by_direction_path_phase_and_frequency() -> None:
@@ -286,6 +295,8 @@ def test_episodes_share_a_basin_by_direction_path_phase_and_frequency() -> None:
     assert wave.same_basin(f, 0.0, {**f, "frequency_hz": 2.9}, 5.0)  # the phase is free
     assert not wave.same_basin(f, 0.0, {**f, "frequency_hz": 3.1}, 0.0)
     assert not wave.same_basin(f, 0.0, {**f, "frequency_hz": 1.3}, 0.0)
+    assert wave.same_basin(f, 0.0, {**f, "direction": [0.0, -1.0]}, 0.0)  # −d: half a period on
+    assert not pulse.same_basin(a, 0.0, {**a, "direction": [-1.0, 0.0]}, 0.0)  # a pulse: not
 
 
 @pytest.mark.parametrize(
@@ -304,7 +315,8 @@ def test_episodes_share_a_basin_by_direction_path_phase_and_frequency() -> None:
         ("search_seeds=[1, 1]", "search_seeds"),
         ("restarts=3", "restarts"),
         ("polish_budget=3", "polish_budget must be 0 or an integer >= popsize"),
-        ("polish_starts=0", "polish_starts must be an integer >= 1"),
+        ("polish_starts=0", "polish_starts must be an integer from 1 to budget"),
+        ("polish_starts=11", "polish_starts must be an integer from 1 to budget"),
         ("polish_sigma=0", "polish_sigma"),  # 10 episodes over 4 runs: fewer than a population each
         ("space=cube", "space"),
         # an empty search space: a box onset range of zero width, a single frequency
@@ -479,3 +491,24 @@ def test_a_resume_after_the_default_gains_moved_is_refused(tmp_path, monkeypatch
     monkeypatch.setitem(entry("pd_gravity").rates.DEFAULT_RATES, "zeta", 0.8)
     with pytest.raises(InvalidConfigError, match="different settings: ran_at"):
         run_search(load_config(None, args), resume=True, progress=False)
+
+
+def test_a_further_local_run_starts_at_an_unused_draw_when_every_draw_shares_a_basin() -> None:
+    from types import SimpleNamespace
+
+    from train.studies.adversary import local_start
+    from train.studies.worst_case import Searchable
+
+    target = Searchable(load_config(None, TINY), "impulse", 0.6)
+
+    def draw(value: float, onset: float, x: float):  # type: ignore[no-untyped-def]
+        spec = {"onset_s": onset, "direction": [1.0, 0.0]}
+        return SimpleNamespace(value=value, params={"x": x}, user_attrs={"spec": spec, "s0": 0.0})
+
+    near = [draw(0.3, 1.0, 0.0), draw(0.2, 1.01, 1.0), draw(0.1, 1.02, 2.0)]
+    far = draw(0.05, 2.0, 3.0)
+    worst = {"params": {"x": 0.0}, "spec": near[0].user_attrs["spec"], "s0": 0.0}
+    assert local_start(target, near, near, [])["params"] == {"x": 0.0}  # the first: the worst
+    assert local_start(target, near, [*near, far], [worst])["params"] == {"x": 3.0}  # elsewhere
+    # every draw in the searched basin: the worst draw no local run started from
+    assert local_start(target, near, near, [worst])["params"] == {"x": 1.0}

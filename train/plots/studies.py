@@ -55,7 +55,7 @@ def fronts_plot(rows: list[dict[str, Any]], path: Path, reference: str) -> None:
 def adversary_plot(df: Any, path: Path) -> None:
     """The worst cost so far against the episodes run, per family × energy: one line per
     controller and search seed (the random draws first, then the CMA-ES runs: the grey
-    line marks where the search starts, the dashed one where the local run does)."""
+    line marks where the search starts, the dashed one where the local runs do)."""
     plt = pyplot()
 
     groups = list(df.groupby(["family", "energy_j"]))
@@ -74,8 +74,9 @@ def adversary_plot(df: Any, path: Path) -> None:
                     label=controller if k == 0 else None,
                 )  # fmt: skip
             ax.axvline((gc["kind"] == "random").sum() / max(len(seeds), 1), color="0.6", lw=0.8)
-            if "run" in gc and (gc["run"] == "polish").any():  # where the local run starts
-                ax.axvline((gc["run"] != "polish").sum() / max(len(seeds), 1), color="0.6",
+            if "run" in gc and (gc["run"] == "polish").any():  # where the local runs start
+                local = gc["run"].str.startswith("polish")
+                ax.axvline((~local).sum() / max(len(seeds), 1), color="0.6",
                            lw=0.8, ls="--")  # fmt: skip
         ax.set_yscale("log")
         ax.set_xlabel("episodes run (random draws, then the search)")

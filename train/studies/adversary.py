@@ -22,12 +22,16 @@ draws: WS-CMA-ES), for another ``budget`` episodes:
 A periodic torque may first be scanned in frequency (``scan_points``: one episode per joint
 at each frequency, the worst direction predicted from their superposition and verified,
 :mod:`train.studies.periodic_scan`): its resonances are narrow in frequency × direction.
-A last, local CMA-ES run of ``polish_budget`` episodes per seed starts at the seed's worst
-episode so far with a small step (``polish_sigma``): the global runs' large steps jump past
-narrow peaks (a push's phase and direction, a periodic torque's resonance).
+Last, ``polish_starts`` local CMA-ES runs of ``polish_budget`` episodes per seed, with a
+small step (``polish_sigma``): the global runs' large steps jump past narrow peaks (a push's
+phase and direction, a periodic torque's resonance). The first starts at the seed's worst
+episode so far; each further one at the worst random draw in a basin no local run before it
+started in or reached (a multistart local search: the global runs, warm-started from the
+seed's best episodes, settle in the basin the random draws found first). Each start is kept
+on its study, so a resume continues from it.
 
-The same budget (``budget`` searched + ``budget`` random episodes, + ``polish_budget``, + a
-scan's) for
+The same budget (``budget`` searched + ``budget`` random episodes, + ``polish_starts`` ×
+``polish_budget``, + a scan's) for
 every controller.
 Writes to ``--out``: ``optuna.journal`` (the studies: ``--resume`` continues them),
 ``trials.csv``, ``worst.yml`` (the worst spec per controller × family × energy and how to
@@ -179,6 +183,7 @@ def _run_study(ctx: _Context, controller: str, target: Searchable, kind: str, se
     name = study_name(controller, target.family, target.energy_j, kind, seed)
     budget = run_budget(cfg, kind)
     source: list[Any] = []
+    start: dict[str, Any] | None = None  # where a searched run starts (its first episode)
     if kind != "random":
         # Warm-started CMA-ES (WS-CMA-ES): its initial distribution comes from the best of
         # the episodes this seed ran before (the random draws, then each earlier run).
@@ -187,32 +192,23 @@ def _run_study(ctx: _Context, controller: str, target: Searchable, kind: str, se
         # unstable for the passivity controller at 2 J on the iiwa). Each restart doubles
         # the population (IPOP's schedule).
         order = kinds(cfg, target.family)
-        local_runs = []  # the trials of each earlier local run
         for earlier in order[: order.index(kind)]:
-            trials = optuna.load_study(
+            source += optuna.load_study(
                 study_name=study_name(controller, target.family, target.energy_j, earlier, seed),
                 storage=storage,
             ).get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
-            source += trials
-            if earlier.startswith("polish"):
-                local_runs.append(trials)
-        start = max(source, key=lambda t: t.value) if source else None
+        start = _start_of(max(source, key=lambda t: t.value)) if source else None
         if kind.startswith("polish"):
-            start = local_start(target, source, local_runs)
-            if start is None:  # every episode lies in a basin a local run searched
-                skipped = optuna.create_study(
-                    study_name=name, storage=storage, direction="maximize", load_if_exists=True
-                )
-                skipped.set_user_attr("skipped", "no episode outside the searched basins")
-                return
+            start = _stored_local_start(ctx, controller, target, kind, seed, source)
         with warnings.catch_warnings():  # source_trials is "experimental" in Optuna 4-5,
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
             warnings.simplefilter("ignore", FutureWarning)  # x0 and sigma0 deprecated in 4.9
             if kind.startswith("polish"):  # local: at the start, small steps
                 k = int(kind.removeprefix("polish") or 0)
+                stream = (POLISH_STREAM,) if k == 0 else (POLISH_STREAM, k)
                 sampler = optuna.samplers.CmaEsSampler(
-                    x0=start.params, sigma0=cfg.polish_sigma,  # type: ignore[union-attr]
-                    popsize=cfg.popsize, seed=_draw_seed(seed, POLISH_STREAM + k),
+                    x0=start["params"], sigma0=cfg.polish_sigma,  # type: ignore[index]
+                    popsize=cfg.popsize, seed=_draw_seed(seed, *stream),
                     warn_independent_sampling=False,
                 )  # fmt: skip
             else:
@@ -233,11 +229,17 @@ def _run_study(ctx: _Context, controller: str, target: Searchable, kind: str, se
     for stale in study.get_trials(deepcopy=False, states=(Running,)):  # an interrupted batch
         study.tell(stale.number, state=optuna.trial.TrialState.FAIL)
     complete = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
-    if kind != "random" and cfg.space != "box" and not study.get_trials(deepcopy=False) and source:
+    waiting = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.WAITING,))
+    unstarted = (
+        not complete and not waiting  # a local run whose first episode was cut: again
+        if kind.startswith("polish")
+        else not study.get_trials(deepcopy=False)  # as it always was: repeats exactly
+    )
+    if kind != "random" and cfg.space != "box" and unstarted and start is not None:
         # the run's first episode is its start, for a global run the worst one so far: a
         # search never ends below where it started (the worst searched >= the worst random
         # draw)
-        study.enqueue_trial(start.params)  # type: ignore[union-attr]
+        study.enqueue_trial(start["params"])
     done = len(complete)
     wall_s = float(study.user_attrs.get("wall_s", 0.0))  # summed over batches: resume-safe
     restart = int(kind.removeprefix("search")) if kind.startswith("search") else 0
@@ -271,29 +273,77 @@ def _run_study(ctx: _Context, controller: str, target: Searchable, kind: str, se
             print(f"{name}: {done}/{budget}, worst {study.best_value:.3g} rad", flush=True)
 
 
-def _skipped(optuna: Any, storage: Any, cfg: AdversaryConfig) -> int:
-    """How many further local runs found no episode outside the basins searched."""
-    return sum(
-        "skipped" in optuna.load_study(study_name=name, storage=storage).user_attrs
-        for name in optuna.get_all_study_names(storage)
-        if name.split("|")[3].startswith("polish") and name.split("|")[3] != "polish"
-    )
+def _start_of(trial: Any) -> dict[str, Any]:
+    """What a run's start is kept as: the episode's parameters, spec and start phase."""
+    return {"params": dict(trial.params), "spec": trial.user_attrs["spec"],
+            "s0": trial.user_attrs.get("s0")}  # fmt: skip
 
 
-def local_start(target: Searchable, source: Sequence[Any], local_runs: Sequence[Any]) -> Any:
-    """The episode a local run starts from: the worst of ``source`` (the seed's episodes so
-    far) in a basin where no earlier local run (``local_runs``: each one's trials) started
-    or found its worst (:meth:`~train.studies.worst_case.Searchable.same_basin`); None when
-    there is none. The first local run starts from the worst episode."""
-    anchors = [t for run in local_runs if run for t in (run[0], max(run, key=lambda t: t.value))]
-    for trial in sorted(source, key=lambda t: t.value, reverse=True):
+def _stored_local_start(
+    ctx: _Context, controller: str, target: Searchable, kind: str, seed: int, source: list[Any]
+) -> dict[str, Any]:
+    """A local run's start: chosen once, when its study has no episode, and kept on the
+    study (``start``), so a resume — even one that extends the budgets, which moves the
+    worst episodes the choice reads — continues from the same point. A local run saved
+    before the start was kept started from its first episode."""
+    optuna, storage, _, cfg, _ = ctx
+    optuna_study = optuna.create_study(
+        study_name=study_name(controller, target.family, target.energy_j, kind, seed),
+        storage=storage, direction="maximize", load_if_exists=True,
+    )  # fmt: skip
+    if "start" in optuna_study.user_attrs:
+        return dict(optuna_study.user_attrs["start"])
+    ran = optuna_study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
+    if ran:  # before the start was kept (period space: its first episode is its start)
+        start = _start_of(ran[0])
+    else:
+        order = kinds(cfg, target.family)
+        earlier = order[: order.index(kind)]
+        load = lambda k: optuna.load_study(  # noqa: E731
+            study_name=study_name(controller, target.family, target.energy_j, k, seed),
+            storage=storage,
+        )
+        random = load("random").get_trials(
+            deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)
+        )
+        local = [(_stored_local_start(ctx, controller, target, k, seed, source), load(k))
+                 for k in earlier if k.startswith("polish")]  # fmt: skip
+        anchors = [a for first, study in local for a in (first, _best_start(study))]
+        start = local_start(target, source, random, [a for a in anchors if a is not None])
+    optuna_study.set_user_attr("start", start)
+    return start
+
+
+def _best_start(study: Any) -> dict[str, Any] | None:
+    """The start record of a study's worst episode (None when it ran none)."""
+    try:
+        return _start_of(study.best_trial)
+    except ValueError:  # no completed trial
+        return None
+
+
+def local_start(
+    target: Searchable,
+    source: Sequence[Any],
+    random: Sequence[Any],
+    anchors: Sequence[dict[str, Any]],
+) -> dict[str, Any]:
+    """Where a local run starts. The first (no ``anchors``): at the worst episode of the
+    seed so far (``source``). Each further one: at the worst of the seed's random draws
+    (``random``) in a basin where no earlier local run started or found its worst
+    (``anchors``: their start records; :meth:`~train.studies.worst_case.Searchable.same_basin`)
+    — the random draws, not the global runs' episodes, which crowd around the basin those
+    settled in; where every draw lies in such a basin, at the worst draw no local run has
+    started from."""
+    if not anchors:
+        return _start_of(max(source, key=lambda t: t.value))
+    ranked = sorted(random, key=lambda t: t.value, reverse=True)
+    for trial in ranked:
         a = trial.user_attrs
-        if not any(
-            target.same_basin(a["spec"], a.get("s0"), b.user_attrs["spec"], b.user_attrs.get("s0"))
-            for b in anchors
-        ):
-            return trial
-    return None
+        if not any(target.same_basin(a["spec"], a.get("s0"), b["spec"], b["s0"]) for b in anchors):
+            return _start_of(trial)
+    used = [b["params"] for b in anchors]
+    return _start_of(next(t for t in ranked if dict(t.params) not in used))
 
 
 def _tell(
@@ -445,8 +495,8 @@ def _write_results(optuna: Any, storage: Any, cfg: AdversaryConfig, out: Path) -
                 if cfg.polish_starts == 1
                 else f" + {cfg.polish_starts} local runs of {cfg.polish_budget} (step "
                 f"{cfg.polish_sigma:g} of each range; the first from the worst so far, each "
-                "further one from the worst in a basin none before started in or reached; "
-                f"{_skipped(optuna, storage, cfg)} found none)"
+                "further one from the worst random draw in a basin no local run before it "
+                "started in or reached)"
             )
             if cfg.polish_budget
             else ""

@@ -63,7 +63,7 @@ class AdversaryConfig:
     and direction, a periodic torque's resonance (BIPOP's small-population regime, once)."""
     polish_starts: int = 1
     """Local runs per search seed, each of ``polish_budget`` episodes: the first from the
-    seed's worst episode so far, each further one from the worst episode in a basin no
+    seed's worst episode so far, each further one from the worst random draw in a basin no
     earlier local run started in or reached
     (:meth:`train.studies.worst_case.Searchable.same_basin`: another direction, path phase or
     frequency) — a multistart local search: the global runs, warm-started from the seed's
@@ -187,10 +187,12 @@ class AdversaryConfig:
         if (
             isinstance(self.polish_starts, bool)
             or not isinstance(self.polish_starts, int)
-            or self.polish_starts < 1
+            or not 1 <= self.polish_starts <= self.budget
         ):
             raise InvalidConfigError(
-                f"polish_starts must be an integer >= 1, got {self.polish_starts!r}"
+                f"polish_starts must be an integer from 1 to budget ({self.budget}: each "
+                f"further local run starts at a random draw of its own), got "
+                f"{self.polish_starts!r}"
             )
         if not (isinstance(self.polish_sigma, (int, float)) and 0 < self.polish_sigma <= 0.5):
             raise InvalidConfigError(

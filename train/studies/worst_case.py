@@ -159,11 +159,13 @@ class Searchable:
         the same point: directions within :data:`BASIN_ANGLE`, the same link, and a pulse's
         path phase at its onset, (s0 + onset) mod S, within :data:`BASIN_PHASE` of a period S
         of each other (wrapping), or periodic frequencies within a factor
-        :data:`BASIN_FREQUENCY`. A local search started in one basin stays in it, so a
-        second local run starts from the worst episode of another
-        (:func:`train.studies.adversary.kinds`)."""
+        :data:`BASIN_FREQUENCY` (a periodic torque's direction up to its sign). A local
+        search started in one basin stays in it, so a further local run starts in another
+        (:func:`train.studies.adversary.local_start`)."""
         da, db = np.asarray(a["direction"], float), np.asarray(b["direction"], float)
         cos = float(da @ db / (np.linalg.norm(da) * np.linalg.norm(db)))
+        if self.family == "periodic":  # −d is d half a period later: the same torque
+            cos = abs(cos)
         if math.acos(min(1.0, max(-1.0, cos))) >= BASIN_ANGLE or a.get("link") != b.get("link"):
             return False
         if self.family == "periodic":
