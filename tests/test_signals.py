@@ -155,3 +155,36 @@ def test_the_evaluations_best_model_is_still_saved(tmp_path: Path) -> None:
     out = tmp_path / "run"
     run(parse_args(argv(out, "sac", "none", 60, "--eval-freq", "50")))
     assert SAC.load(out / "best_model.zip").num_timesteps == 50
+
+
+def test_every_held_signal_is_delivered_even_after_one_raises(tmp_path: Path) -> None:
+    """Ctrl-C then SIGTERM (at its default action) held by one save: the first raises
+    KeyboardInterrupt, and the second still ends the process."""
+    code = (
+        "import signal\n"
+        "from train.common.signals import uninterrupted\n"
+        "try:\n"
+        "    with uninterrupted():\n"
+        "        signal.raise_signal(signal.SIGINT)\n"
+        "        signal.raise_signal(signal.SIGTERM)\n"
+        "except KeyboardInterrupt:\n"
+        "    pass\n"
+        "print('survived')\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == -signal.SIGTERM and "survived" not in proc.stdout
+
+
+def test_an_ignored_or_foreign_handler_is_left_alone(monkeypatch: pytest.MonkeyPatch) -> None:
+    """SIG_IGN stays installed through the block (no handler of its own to interrupt a
+    system call); a handler Python did not install (``getsignal`` None) is not replaced,
+    so nothing tries to restore None."""
+    real = signal.getsignal
+    monkeypatch.setattr(signal, "getsignal", lambda s: None if s == signal.SIGINT else real(s))
+    previous = signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    try:
+        with uninterrupted():
+            assert real(signal.SIGTERM) == signal.SIG_IGN
+            assert real(signal.SIGINT) is signal.default_int_handler  # untouched
+    finally:
+        signal.signal(signal.SIGTERM, previous)

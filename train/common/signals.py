@@ -49,13 +49,15 @@ def uninterrupted() -> Iterator[None]:
     """Hold SIGINT and SIGTERM while the block runs (a save), then deliver them.
 
     A signal that arrives inside the block is recorded, not acted on; when the block ends
-    (normally or by an exception) the handlers in force before it are restored and each
-    held signal is raised again, once, in the order it came, so it does what it would have
-    done had it arrived just after the save: ``KeyboardInterrupt`` under Python's default
-    SIGINT handler or :func:`sigterm_as_interrupt`, nothing where it is ignored, the end of
-    the process under SIGTERM's default action. Blocks nest (an inner block hands its
-    signals to the outer one). Outside the main thread, where Python runs no signal
-    handler and cannot install one, the block runs as it is.
+    (normally or by an exception) the handlers in force before it are restored and every
+    held signal is raised again, once, in the order it came — each even when one before it
+    raised — so it does what it would have done had it arrived just after the save:
+    ``KeyboardInterrupt`` under Python's default SIGINT handler or
+    :func:`sigterm_as_interrupt`, the end of the process under SIGTERM's default action.
+    A signal ignored before the block (or whose handler Python did not install) is left
+    alone. Blocks nest (an inner block hands its signals to the outer one). Outside the
+    main thread, where Python runs no signal handler and cannot install one, the block runs
+    as it is.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -66,11 +68,26 @@ def uninterrupted() -> Iterator[None]:
         if signum not in held:
             held.append(signum)
 
-    previous = {s: signal.signal(s, _hold) for s in INTERRUPTS}
+    restore = contextlib.ExitStack()
     try:
+        for s in INTERRUPTS:
+            previous = signal.getsignal(s)
+            if previous is None or previous == signal.SIG_IGN:
+                continue
+            restore.callback(signal.signal, s, previous)  # registered before it is replaced
+            signal.signal(s, _hold)
         yield
     finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-        for s in held:
-            signal.raise_signal(s)
+        try:
+            restore.close()  # every handler back, even if a signal interrupts one restore
+        finally:
+            _deliver(held)
+
+
+def _deliver(signals: list[int]) -> None:
+    """Raise each of ``signals`` in order; a handler's exception does not stop the rest."""
+    if signals:
+        try:
+            signal.raise_signal(signals[0])
+        finally:
+            _deliver(signals[1:])

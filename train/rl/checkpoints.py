@@ -4,12 +4,17 @@ Files in ``<run>/checkpoints/``: ``rl_model_<steps>_steps.zip`` (SB3's
 ``CheckpointCallback``), the matching ``rl_model_vecnormalize_<steps>_steps.pkl`` and, for
 the newest checkpoint only, ``rl_model_replay_buffer_<steps>_steps.pkl``. The final state is
 always saved there too, so ``--resume`` continues any finished or interrupted run. Every
-save here runs :func:`~train.common.signals.uninterrupted`: Ctrl-C or SIGTERM during one
-is delivered once the files are whole.
+save here runs :func:`~train.common.signals.uninterrupted` — Ctrl-C or SIGTERM during one
+is delivered once the files are whole — and writes each file as ``<name>.part`` renamed
+into place, a checkpoint's zip last: a process killed outright (SIGKILL, out of memory)
+leaves no half-written file under a checkpoint's name, and a checkpoint's zip is there only
+once its replay buffer and statistics are.
 """
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
 from pathlib import Path
 
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -36,22 +41,23 @@ def prune_replay_buffers(folder: Path, keep_steps: int) -> None:
 
 
 class PruningCheckpointCallback(CheckpointCallback):
-    """SB3's CheckpointCallback that keeps only the newest replay buffer and saves
-    uninterrupted (a checkpoint is never left half-written by Ctrl-C or SIGTERM)."""
+    """SB3's CheckpointCallback (its file names, every ``save_freq`` calls) saving through
+    :func:`write_checkpoint`: uninterrupted, each file renamed into place, only the newest
+    replay buffer kept."""
 
     def _on_step(self) -> bool:
-        if self.n_calls % self.save_freq != 0:
-            return super()._on_step()  # nothing to save at this step
-        with uninterrupted():
-            result = super()._on_step()
-            if self.save_replay_buffer:
-                prune_replay_buffers(Path(self.save_path), self.num_timesteps)
-        return result
+        if self.n_calls % self.save_freq == 0:
+            write_checkpoint(
+                self.model, self.model.get_vec_normalize_env() if self.save_vecnormalize else None,
+                Path(self.save_path), replay_buffer=self.save_replay_buffer,
+            )  # fmt: skip
+        return True
 
 
 class SaveBestModel(BaseCallback):
     """``EvalCallback``'s ``callback_on_new_best``: writes ``best_model.zip`` uninterrupted
-    (in place of the EvalCallback's own save, which a signal could cut short)."""
+    and renamed into place (in place of the EvalCallback's own save, which a signal could
+    cut short)."""
 
     def __init__(self, path: Path) -> None:
         super().__init__()
@@ -59,38 +65,63 @@ class SaveBestModel(BaseCallback):
 
     def _on_step(self) -> bool:
         with uninterrupted():
-            self.model.save(self.path)
+            saved_whole(self.path, self.model.save)
         return True
+
+
+def saved_whole(path: Path, save: Callable[[Path], object]) -> None:
+    """``save(<path>.part)``, then rename it to ``path`` (atomic on one file system): the
+    file under ``path`` is always a whole one — the old or the new."""
+    part = path.with_name(path.name + ".part")
+    save(part)
+    os.replace(part, path)
+
+
+def write_checkpoint(
+    model: BaseAlgorithm, vecnormalize: VecEnv | None, folder: Path, replay_buffer: bool = True
+) -> None:
+    """``<folder>/rl_model_<steps>_steps.zip`` with, before it, its VecNormalize statistics
+    (``vecnormalize``, where one is given) and, with ``replay_buffer``, an off-policy
+    model's replay buffer (older ones pruned). Uninterrupted, each file renamed into
+    place."""
+    steps = model.num_timesteps
+    folder.mkdir(parents=True, exist_ok=True)
+    with uninterrupted():
+        if replay_buffer and isinstance(model, OffPolicyAlgorithm):
+            saved_whole(
+                folder / f"{CHECKPOINT_PREFIX}_replay_buffer_{steps}_steps.pkl",
+                model.save_replay_buffer,
+            )
+        if isinstance(vecnormalize, VecNormalize):
+            saved_whole(
+                folder / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl",
+                lambda p: vecnormalize.save(str(p)),
+            )
+        saved_whole(folder / f"{CHECKPOINT_PREFIX}_{steps}_steps.zip", model.save)
+        if replay_buffer:
+            prune_replay_buffers(folder, steps)
 
 
 def save_checkpoint(
     model: BaseAlgorithm, train_env: VecEnv, run_dir: Path, replay_buffer: bool = True
 ) -> Path:
-    """``checkpoints/rl_model_<steps>_steps.zip`` and its VecNormalize statistics; with
-    ``replay_buffer``, an off-policy model's replay buffer too (older ones pruned). Returns
-    the checkpoint folder. Uninterrupted."""
-    steps = model.num_timesteps
+    """``checkpoints/rl_model_<steps>_steps.zip`` of ``run_dir`` and its VecNormalize
+    statistics (``train_env``'s, where it is one); with ``replay_buffer``, an off-policy
+    model's replay buffer too (:func:`write_checkpoint`). Returns the checkpoint folder."""
     ckpt = run_dir / "checkpoints"
-    ckpt.mkdir(parents=True, exist_ok=True)
-    with uninterrupted():
-        model.save(ckpt / f"{CHECKPOINT_PREFIX}_{steps}_steps.zip")
-        if replay_buffer and isinstance(model, OffPolicyAlgorithm):
-            path = ckpt / f"{CHECKPOINT_PREFIX}_replay_buffer_{steps}_steps.pkl"
-            model.save_replay_buffer(path)
-            prune_replay_buffers(ckpt, steps)
-        if isinstance(train_env, VecNormalize):
-            train_env.save(str(ckpt / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"))
+    write_checkpoint(model, train_env, ckpt, replay_buffer)
     return ckpt
 
 
 def save_final(model: BaseAlgorithm, train_env: VecEnv, run_dir: Path) -> None:
     """model.zip / vecnormalize.pkl, and the same state as a checkpoint for --resume
-    (with the replay buffer of an off-policy model); uninterrupted."""
+    (with the replay buffer of an off-policy model); uninterrupted, each file renamed into
+    place."""
     with uninterrupted():
-        model.save(run_dir / "model.zip")
+        saved_whole(run_dir / "model.zip", model.save)
         save_checkpoint(model, train_env, run_dir)
         if isinstance(train_env, VecNormalize):
-            train_env.save(str(run_dir / "vecnormalize.pkl"))
+            saved_whole(run_dir / "vecnormalize.pkl", lambda p: train_env.save(str(p)))
 
 
 def load_checkpoint(
