@@ -125,7 +125,7 @@ def test_a_run_stopped_in_the_middle_of_a_checkpoint_saves_model_zip_and_resumes
 
     def stopped_mid_save(self, data):  # type: ignore[no-untyped-def]
         writes.append(len(data))
-        if len(writes) == 3:  # torch.save has written a part of policy.pth
+        if len(writes) == 3:  # torch.save has written a part of the zip's tensors
             os.kill(os.getpid(), signal.SIGTERM)
         return real_write(self, data)
 
@@ -188,3 +188,52 @@ def test_an_ignored_or_foreign_handler_is_left_alone(monkeypatch: pytest.MonkeyP
             assert real(signal.SIGINT) is signal.default_int_handler  # untouched
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def test_a_save_cut_short_leaves_the_old_file_whole(tmp_path: Path) -> None:
+    """A process killed in the middle of a save (a save that stops part-way stands in for
+    it) leaves the file under its name as it was: only ``<name>.part`` is half-written."""
+    from train.rl.checkpoints import saved_whole
+
+    target = tmp_path / "model.zip"
+    target.write_text("the old, whole model")
+
+    def killed(path: Path) -> None:
+        path.write_text("half of the new")
+        raise SystemExit("killed")
+
+    with pytest.raises(SystemExit):
+        saved_whole(target, killed)
+    assert target.read_text() == "the old, whole model"
+    saved_whole(target, lambda p: p.write_text("the new model"))
+    assert target.read_text() == "the new model" and not (tmp_path / "model.zip.part").exists()
+
+
+def test_a_checkpoint_zip_appears_only_after_its_replay_buffer(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The zip marks a whole checkpoint: a run killed while the replay buffer of its next
+    checkpoint is written still resumes from the last whole one."""
+    pytest.importorskip("stable_baselines3")
+    from stable_baselines3 import SAC
+
+    from tests.test_train import argv
+    from train.rl.checkpoints import latest_checkpoint
+    from train.rl.config import parse_args
+    from train.rl.run import run
+
+    out = tmp_path / "run"
+    run(parse_args(argv(out, "sac", "none", 60, "--eval-freq", "0", "--checkpoint-freq", "60")))
+    assert latest_checkpoint(out)[0] == 60  # type: ignore[index]
+
+    def killed(self, path):  # type: ignore[no-untyped-def]
+        Path(path).write_bytes(b"half a buffer")
+        raise SystemExit("killed")
+
+    monkeypatch.setattr(SAC, "save_replay_buffer", killed)
+    with pytest.raises(SystemExit):
+        run(parse_args([*argv(out, "sac", "none", 60, "--eval-freq", "0", "--checkpoint-freq",
+                              "60"), "--resume"]))  # fmt: skip
+    steps, path = latest_checkpoint(out)  # type: ignore[misc]
+    assert steps == 60 and SAC.load(path).num_timesteps == 60
+    assert not (out / "checkpoints" / "rl_model_120_steps.zip").exists()

@@ -11,6 +11,7 @@ only :mod:`train.evaluation.episode` and what an episode needs.
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -175,9 +176,10 @@ def run_sweep(
             for row, trace, task in tqdm(
                 runner, total=len(tasks), disable=not progress, desc="episodes"
             ):
+                if trace is not None:  # whole, and before its row: a resume redoes both
+                    _save_trace(_trace_path(out, task.controller), trace)
                 writer.write(row)
                 if trace is not None:
-                    np.savez_compressed(_trace_path(out, task.controller), **trace)
                     if cfg.plots and pool is not None:  # drawn now, among the episodes
                         drawn[task.controller] = pool.submit(
                             *_example_figure(cfg, out, task.controller)
@@ -204,6 +206,15 @@ def _example_condition(cfg: EvalConfig) -> tuple[str, float, int, int]:
         return ("none", 0.0, 0, 0)
     levels = sorted(cfg.levels)
     return (disturbed[0], float(levels[len(levels) // 2]), 0, 0)
+
+
+def _save_trace(path: Path, trace: dict[str, Any]) -> None:
+    """``np.savez_compressed`` to ``<path>.part``, renamed into place: an interrupted
+    sweep leaves no cut trace behind the row it records."""
+    part = path.with_name(path.name + ".part")
+    with part.open("wb") as f:
+        np.savez_compressed(f, **trace)
+    os.replace(part, path)
 
 
 def _trace_path(out: Path, controller: str) -> Path:

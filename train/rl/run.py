@@ -17,7 +17,7 @@ from :mod:`train.rl.checkpoints`.
 
 The run folder ``--out`` receives ``config.yml`` (the resolved config and
 hyperparameters), ``command.txt`` (one line per invocation), ``versions.json``,
-``model.zip`` and ``vecnormalize.pkl`` (final), ``best_model.zip`` (EvalCallback),
+``model.zip`` and ``vecnormalize.pkl`` (final), ``best_model.zip`` (the evaluation's best),
 ``eval/`` and ``monitor/`` (per invocation), ``tb/`` (``--tensorboard``) and
 ``checkpoints/rl_model_<steps>_steps.zip`` with the matching VecNormalize statistics and,
 for the newest checkpoint only, the replay buffer (the final state is always saved there

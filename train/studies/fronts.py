@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import io
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -37,7 +38,7 @@ from ptrack_gym.disturbances import PRESETS
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import profile_for_env_id
 from train.common import arguments
-from train.common.runs import open_run, worker_count, worker_pool
+from train.common.runs import open_run, worker_count, worker_pool, write_atomic
 from train.common.statistics import bootstrap_ci, pareto_front
 from train.evaluation.episode import EpisodeSettings, Task, run_episode
 from train.plots.studies import fronts_plot
@@ -198,11 +199,12 @@ def _read_points(path: Path) -> list[dict[str, Any]]:
     with path.open() as f:
         raw = list(csv.DictReader(f))
     whole = [r for r in raw if all(r.get(k) not in (None, "") for k in POINT_COLUMNS)]
-    if len(whole) != len(raw):
-        with path.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(POINT_COLUMNS))
-            writer.writeheader()
-            writer.writerows(whole)
+    if len(whole) != len(raw):  # rewritten whole or not at all: a Ctrl-C here loses nothing
+        text = io.StringIO(newline="")
+        writer = csv.DictWriter(text, fieldnames=list(POINT_COLUMNS))
+        writer.writeheader()
+        writer.writerows(whole)
+        write_atomic(path, text.getvalue())
     return [
         {**r, "scale": float(r["scale"]), "seed": int(r["seed"]),
          "error_rad": float(r["error_rad"]), "effort": float(r["effort"]),
