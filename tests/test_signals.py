@@ -192,8 +192,9 @@ def test_an_ignored_or_foreign_handler_is_left_alone(monkeypatch: pytest.MonkeyP
 
 def test_a_save_cut_short_leaves_the_old_file_whole(tmp_path: Path) -> None:
     """A process killed in the middle of a save (a save that stops part-way stands in for
-    it) leaves the file under its name as it was: only ``<name>.part`` is half-written."""
-    from train.rl.checkpoints import saved_whole
+    it) leaves the file under its name as it was: only a temporary beside it is
+    half-written (and removed where the process lives on to see the error)."""
+    from train.common.runs import saved_whole
 
     target = tmp_path / "model.zip"
     target.write_text("the old, whole model")
@@ -205,8 +206,9 @@ def test_a_save_cut_short_leaves_the_old_file_whole(tmp_path: Path) -> None:
     with pytest.raises(SystemExit):
         saved_whole(target, killed)
     assert target.read_text() == "the old, whole model"
+    assert sorted(tmp_path.iterdir()) == [target]  # the cut temporary is gone too
     saved_whole(target, lambda p: p.write_text("the new model"))
-    assert target.read_text() == "the new model" and not (tmp_path / "model.zip.part").exists()
+    assert target.read_text() == "the new model" and sorted(tmp_path.iterdir()) == [target]
 
 
 def test_a_checkpoint_zip_appears_only_after_its_replay_buffer(

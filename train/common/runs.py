@@ -22,7 +22,7 @@ import shlex
 import sys
 import threading
 import time
-from collections.abc import Collection, Mapping
+from collections.abc import Callable, Collection, Mapping
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -126,9 +126,17 @@ def write_atomic(path: Path, text: str) -> None:
     controller): each rewrites ``config.yml`` while another reads it. A plain
     ``write_text`` truncates first, and a reader in that window saw an empty config.
     """
+    saved_whole(path, lambda tmp: tmp.write_text(text))
+
+
+def saved_whole(path: Path, save: Callable[[Path], object]) -> None:
+    """``save`` a file to a temporary name beside ``path`` (``.<name>.<pid>.<thread>.tmp``),
+    then rename it to ``path`` (atomic on one file system): the file under ``path`` is
+    always a whole one — the old or the new — whether a reader looks in between or the
+    process is killed mid-save; a failed save's temporary is removed."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
     try:
-        tmp.write_text(text)
+        save(tmp)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)

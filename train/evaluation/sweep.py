@@ -11,7 +11,6 @@ only :mod:`train.evaluation.episode` and what an episode needs.
 from __future__ import annotations
 
 import dataclasses
-import os
 import sys
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -29,7 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ptrack_gym.robots import profile_for_env_id
-from train.common.runs import worker_count, worker_pool
+from train.common.runs import saved_whole, worker_count, worker_pool
 from train.evaluation.config import EvalConfig
 from train.evaluation.episode import (
     KEY_COLUMNS,
@@ -209,12 +208,14 @@ def _example_condition(cfg: EvalConfig) -> tuple[str, float, int, int]:
 
 
 def _save_trace(path: Path, trace: dict[str, Any]) -> None:
-    """``np.savez_compressed`` to ``<path>.part``, renamed into place: an interrupted
-    sweep leaves no cut trace behind the row it records."""
-    part = path.with_name(path.name + ".part")
-    with part.open("wb") as f:
-        np.savez_compressed(f, **trace)
-    os.replace(part, path)
+    """``np.savez_compressed``, renamed into place (:func:`~train.common.runs.saved_whole`):
+    an interrupted sweep leaves no cut trace behind the row it records."""
+
+    def save(tmp: Path) -> None:
+        with tmp.open("wb") as f:
+            np.savez_compressed(f, **trace)
+
+    saved_whole(path, save)
 
 
 def _trace_path(out: Path, controller: str) -> Path:

@@ -5,16 +5,15 @@ Files in ``<run>/checkpoints/``: ``rl_model_<steps>_steps.zip`` (SB3's
 the newest checkpoint only, ``rl_model_replay_buffer_<steps>_steps.pkl``. The final state is
 always saved there too, so ``--resume`` continues any finished or interrupted run. Every
 save here runs :func:`~train.common.signals.uninterrupted` — Ctrl-C or SIGTERM during one
-is delivered once the files are whole — and writes each file as ``<name>.part`` renamed
-into place, a checkpoint's zip last: a process killed outright (SIGKILL, out of memory)
-leaves no half-written file under a checkpoint's name, and a checkpoint's zip is there only
-once its replay buffer and statistics are.
+is delivered once the files are whole — and writes each file under a temporary name
+renamed into place (:func:`~train.common.runs.saved_whole`), a checkpoint's zip last: a
+process killed outright (SIGKILL, out of memory) leaves no half-written file under a
+checkpoint's name, and a checkpoint's zip is there only once its replay buffer and
+statistics are.
 """
 
 from __future__ import annotations
 
-import os
-from collections.abc import Callable
 from pathlib import Path
 
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -24,6 +23,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from train.common.checkpoint_files import CHECKPOINT_PREFIX, latest_checkpoint
 from train.common.checkpoint_files import REPLAY_RE as _REPLAY_RE
+from train.common.runs import saved_whole
 from train.common.signals import uninterrupted
 from train.rl.hyperparameters import TrainConfigError
 
@@ -67,14 +67,6 @@ class SaveBestModel(BaseCallback):
         with uninterrupted():
             saved_whole(self.path, self.model.save)
         return True
-
-
-def saved_whole(path: Path, save: Callable[[Path], object]) -> None:
-    """``save(<path>.part)``, then rename it to ``path`` (atomic on one file system): the
-    file under ``path`` is always a whole one — the old or the new."""
-    part = path.with_name(path.name + ".part")
-    save(part)
-    os.replace(part, path)
 
 
 def write_checkpoint(
