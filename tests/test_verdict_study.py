@@ -51,6 +51,7 @@ def test_a_tiny_study_runs_pairs_by_path_and_seed_and_resumes(tmp_path):
     assert (paths[["wins", "ties", "losses"]].sum(axis=1) == paths["conditions"]).all()
     assert (paths["conditions"] == 2).all()
     assert "Path by path" in text and (out / "verdict.png").stat().st_size > 0
+    assert "| condition | two_link |" in text and "| periodic 1 |" in text  # the grid
 
     # an interrupted run: drop the last 5 rows; the resume runs exactly those again
     lines = (out / "episodes.csv").read_text().splitlines(keepends=True)
@@ -72,6 +73,38 @@ def test_a_tiny_study_runs_pairs_by_path_and_seed_and_resumes(tmp_path):
     pd.testing.assert_frame_equal(
         again.drop(columns="wall_s"), df.drop(columns="wall_s"), check_exact=True
     )
+
+
+def test_the_grid_reads_each_robots_ratio_outcome_and_failures_in_its_cell():
+    rivals = pd.DataFrame(
+        {
+            "robot": ["a", "a", "b", "b", "a"],
+            "disturbance": ["push", "none", "push", "none", "push"],
+            "level": [1, 0, 1, 0, 1],
+            "metric": ["path_dist_rms"] * 4 + ["time_err_rms"],
+            "ratio": [0.44, 2.8, 14716.0, 1.0, 30.0],
+            "outcome": ["wins", "loses", "loses", "ties", "loses"],
+        }
+    )
+    episodes = pd.DataFrame(
+        {
+            "robot": ["b"] * 3 + ["a"],
+            "controller": ["passivity", "passivity", "rival", "passivity"],
+            "disturbance": ["push", "push", "push", "push"],
+            "level": ["1", "1", "1", "1"],
+            "failed": [True, False, True, False],
+        }
+    )
+    text = vs.grid_table(rivals, ["b", "c", "a"], "path_dist_rms", episodes, "passivity")
+    lines = text.splitlines()
+    assert lines[0] == "| condition | b | a |"  # a robot without rows gets no column
+    assert lines[2] == "| undisturbed | 1 ties | 2.8 loses |"  # undisturbed first
+    # the focus's own failures (not the rival's), a large ratio in full, a win in bold
+    assert lines[3] == "| push 1 | 14,716 loses (1/2 failed) | **0.44 wins** |"
+    assert len(lines) == 4
+    time = vs.grid_table(rivals, ["a", "b"], "time_err_rms", episodes, "passivity")
+    assert time.splitlines() == ["| condition | a |", "|---|---|", "| push 1 | 30 loses |"]
+    assert vs.grid_table(rivals.iloc[:0], ["a"], "path_dist_rms", episodes, "passivity") == ""
 
 
 def test_a_paths_features_are_those_of_the_path_its_env_builds():

@@ -14,6 +14,8 @@
   are the marks of a paired sign-flip test with Holm's correction over the conditions (one
   family per metric). The rival is chosen on the same episodes it is tested on, which can
   only make the focus look worse (a rival picked for its low mean), never better;
+* :func:`grid_table` — the focus over its rival, condition by condition (rows) and robot by
+  robot (columns), with its outcome: the verdict across robots at a glance;
 * :func:`ranking_table` — per condition, the controllers ordered by mean under each metric;
 * :func:`ranking_agreement` — whether two sweeps (e.g. disturbances sized at the home pose
   and at the onset) rank the controllers alike: leaders and Kendall's τ per condition.
@@ -179,6 +181,50 @@ def rival_table(rivals: pd.DataFrame) -> str:
             f"| {r['rival']} | {r['focus_mean']:.3g} | {r['rival_mean']:.3g} | {r['ratio']:.2f} "
             f"| {r['p_holm']:.2g} | {r['outcome']} |"
         )
+    return "\n".join(lines)
+
+
+def condition_order(conditions: list[tuple[str, float]]) -> list[tuple[str, float]]:
+    """Conditions as every table lists them: undisturbed first, then by preset and level."""
+    return sorted(set(conditions), key=lambda c: (c[0] != "none", c[0], float(c[1])))
+
+
+def grid_table(
+    rivals: pd.DataFrame, robots: list[str], metric: str, episodes: pd.DataFrame, focus: str
+) -> str:
+    """Markdown, one row per condition and one column per robot: the focus's mean over its
+    strongest rival's on ``metric`` (:func:`rival_comparisons` rows with a ``robot``
+    column) and the test's outcome, with the focus's failed episodes where it had any
+    (``episodes``: the rows with ``robot``, ``controller``, ``failed``)."""
+    rows = rivals[rivals["metric"] == metric] if len(rivals) else rivals
+    robots = [r for r in robots if len(rows) and r in set(rows["robot"])]
+    if not robots:
+        return ""
+    mine = episodes[episodes["controller"] == focus]
+    failed = {
+        (robot, dist, float(level)): (int(g["failed"].sum()), len(g))
+        for (robot, dist, level), g in mine.groupby(["robot", "disturbance", "level"])
+    }
+    cells: dict[tuple[str, str, float], str] = {}
+    for _, r in rows.iterrows():
+        key = (str(r["robot"]), str(r["disturbance"]), float(r["level"]))
+        ratio = float(r["ratio"])
+        text = f"{ratio:.2g}" if ratio < 100 else f"{ratio:,.0f}"
+        text += f" {r['outcome']}"
+        n, size = failed.get(key, (0, 0))
+        if n:
+            text += f" ({n}/{size} failed)"
+        cells[key] = f"**{text}**" if r["outcome"] == "wins" else text
+    conditions = condition_order(
+        [(str(d), float(lv)) for d, lv in zip(rows["disturbance"], rows["level"], strict=True)]
+    )
+    lines = [
+        "| condition | " + " | ".join(robots) + " |",
+        "|---|" + "---|" * len(robots),
+    ]
+    for d, lv in conditions:
+        row = [cells.get((robot, d, lv), "–") for robot in robots]
+        lines.append(f"| {condition_name(d, lv)} | " + " | ".join(row) + " |")
     return "\n".join(lines)
 
 

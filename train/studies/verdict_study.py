@@ -60,6 +60,7 @@ from train.evaluation.results import read_episodes
 from train.evaluation.verdict import (
     BOTH_METRICS,
     condition_name,
+    grid_table,
     ranking_table,
     rival_comparisons,
     rival_table,
@@ -354,6 +355,20 @@ def across_table(cfg: VerdictConfig, table: pd.DataFrame, df: pd.DataFrame) -> s
     return "\n".join(lines)
 
 
+def grid_lines(cfg: VerdictConfig, table: pd.DataFrame, df: pd.DataFrame) -> list[str]:
+    """The section of ``verdict.md`` with :func:`grid_table` under each metric."""
+    lines = []
+    for metric in BOTH_METRICS:
+        grid = grid_table(table, cfg.robots, metric, df, FOCUS)
+        if grid:
+            lines += [
+                f"By {words(metric)}, condition by condition: {FOCUS}'s mean over its "
+                "strongest rival's, the outcome, and its failed episodes where it had any:",
+                "", grid, "",
+            ]  # fmt: skip
+    return lines
+
+
 def write_report(cfg: VerdictConfig, out: Path) -> None:
     """``rivals.csv``, ``aggregates.csv`` and ``verdict.md`` from ``out/episodes.csv``."""
     df = load_frame(out / "episodes.csv")
@@ -389,6 +404,7 @@ def write_report(cfg: VerdictConfig, out: Path) -> None:
         across_table(cfg, table, df),
         "",
         *(["![focus / rival per condition](verdict.png)", ""] if len(table) else []),
+        *grid_lines(cfg, table, df),
         "Every path holds the same seeds, so the means below (over episodes) are the means "
         "over paths of the per-path means; `aggregates.csv` has them with two-stage "
         "bootstrap intervals (paths, then seeds).",
