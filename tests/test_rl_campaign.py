@@ -101,6 +101,29 @@ def test_bad_study_files_raise(tmp_path: Path, bad: dict) -> None:
         load_campaign(write(tmp_path, bad), tmp_path / "out")
 
 
+def test_a_part_of_a_campaign_is_its_runs_with_their_own_folders(tmp_path: Path) -> None:
+    path = write(tmp_path, TINY)
+    whole = {c.out: c for c in load_campaign(path, tmp_path / "runs")}
+    part = load_campaign(path, tmp_path / "runs", groups=["residual-passivity"], seeds=[1])
+    assert [c.out for c in part] == [str(tmp_path / "runs" / "residual-passivity_s1")]
+    assert part[0] == whole[part[0].out]  # the same run as in the whole campaign
+    assert len(load_campaign(path, tmp_path / "runs", seeds=[0])) == 2
+    assert len(load_campaign(path, tmp_path / "runs", groups=["pure"])) == 2
+    with pytest.raises(TrainConfigError, match=r"no group \['pur'\]"):
+        load_campaign(path, tmp_path / "runs", groups=["pur"])
+    with pytest.raises(TrainConfigError, match=r"no seed \[7\]"):
+        load_campaign(path, tmp_path / "runs", seeds=[0, 7])
+
+
+def test_an_unknown_group_or_seed_is_a_usage_error_before_any_run(tmp_path: Path) -> None:
+    path = write(tmp_path, TINY)
+    for extra in (["--groups", "pur"], ["--seeds", "7"]):
+        with pytest.raises(SystemExit) as exc:
+            main(["--config", str(path), "--out", str(tmp_path / "runs"), *extra])
+        assert exc.value.code == 2
+    assert not (tmp_path / "runs").exists()
+
+
 def test_campaign_trains_skips_and_resumes(tmp_path: Path) -> None:
     study, out = write(tmp_path, TINY), tmp_path / "out"
     assert main(["--config", str(study), "--out", str(out), "--workers", "2"]) == 0

@@ -22,6 +22,9 @@ Usage::
     ptrack campaign --config train/configs/campaign/rl_study_two_link.yml \\
         --out runs/rl_study_two_link --workers 2
 
+``--groups`` and ``--seeds`` train a part of the file (the same run folders: a campaign
+split across sessions or machines, each part resumable on its own).
+
 ``--backend ray`` (the ``ray`` extra) runs them as one-CPU Ray tasks instead — on a local
 instance of ``--workers`` CPUs, or on the cluster at ``--ray-address`` — with the same
 skipping and resuming (the same models: tested). Then ``ptrack study --runs <out> ...``
@@ -49,12 +52,19 @@ from train.rl.hyperparameters import TrainConfigError
 _CONFIG_KEYS = {"seeds", "common", "groups"}
 
 
-def load_campaign(path: Path, out: Path) -> list[TrainConfig]:
-    """The study's runs as validated-in-form :class:`TrainConfig` s (fresh, no resume).
+def load_campaign(
+    path: Path,
+    out: Path,
+    groups: Sequence[str] | None = None,
+    seeds: Sequence[int] | None = None,
+) -> list[TrainConfig]:
+    """The study's runs as validated-in-form :class:`TrainConfig` s (fresh, no resume);
+    with ``groups`` or ``seeds``, only those of the file's (a campaign split across
+    sessions or machines: the runs and their folders are those of the whole campaign).
 
     Raises:
         TrainConfigError: unknown top-level keys, an unknown TrainConfig field, no seeds
-            or groups.
+            or groups, a selected group or seed the file does not have.
     """
     raw = yaml.safe_load(path.read_text()) or {}
     if not isinstance(raw, dict):
@@ -62,14 +72,21 @@ def load_campaign(path: Path, out: Path) -> list[TrainConfig]:
     unknown = set(raw) - _CONFIG_KEYS
     if unknown:
         raise TrainConfigError(f"{path}: unknown keys {sorted(unknown)}; known: {_CONFIG_KEYS}")
-    seeds = raw.get("seeds") or []
-    groups = raw.get("groups") or {}
-    if not seeds or not groups:
+    all_seeds = [int(x) for x in raw.get("seeds") or []]
+    all_groups = raw.get("groups") or {}
+    if not all_seeds or not all_groups:
         raise TrainConfigError(f"{path}: needs 'seeds' and 'groups'")
+    for kind, chosen, known_ones in (("group", groups, list(all_groups)),
+                                     ("seed", seeds, all_seeds)):  # fmt: skip
+        missing = [x for x in chosen or [] if x not in known_ones]
+        if missing:
+            raise TrainConfigError(f"{path}: no {kind} {missing}; it has {known_ones}")
+    seeds = [x for x in all_seeds if seeds is None or x in seeds]
+    group_specs = {g: v for g, v in all_groups.items() if groups is None or g in groups}
     common = dict(raw.get("common") or {})
     known = {f.name for f in fields(TrainConfig)} - {"out", "seed", "resume"}
     runs = []
-    for group, spec in groups.items():
+    for group, spec in group_specs.items():
         merged = {**common, **(spec or {})}
         merged["overrides"] = {
             **(common.get("overrides") or {}),
@@ -155,6 +172,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="a pool of --workers processes, or Ray tasks (the 'ray' extra; one CPU each)",
     )  # fmt: skip
     p.add_argument("--ray-address", help="with --backend ray: a running cluster's address")
+    p.add_argument("--groups", nargs="+", metavar="GROUP",
+                   help="train only these groups of the file (default: every group)")  # fmt: skip
+    p.add_argument("--seeds", nargs="+", type=int, metavar="SEED",
+                   help="train only these seeds of the file (default: every seed)")  # fmt: skip
     args = p.parse_args(argv)
     if args.workers < 1:
         p.error(f"--workers must be >= 1, got {args.workers}")
@@ -168,7 +189,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.out is None:
         args.out = Path("runs") / args.config.stem
     validate_campaign(args.config)  # every run checked before the first starts
-    todo: list[Any] = [c for c in map(plan, load_campaign(args.config, args.out)) if c]
+    try:
+        runs = load_campaign(args.config, args.out, args.groups, args.seeds)
+    except TrainConfigError as exc:
+        p.error(str(exc))
+    todo: list[Any] = [c for c in map(plan, runs) if c]
     print(f"{len(todo)} runs to train into {args.out}", flush=True)
     failed = []
     ctx = mp.get_context("spawn")
