@@ -345,6 +345,42 @@ def test_an_entrant_is_judged_on_the_test_paths_against_its_base(tmp_path, resid
     assert f"| two_link | {name} | sac | 100 | the default path | periodic:1.0 | ±0 |" in text
 
 
+@pytest.fixture(scope="module")
+def tank_run(tmp_path_factory):
+    """A 100-step SAC residual over the passivity controller through an energy tank."""
+    pytest.importorskip("stable_baselines3")
+    from train.rl.config import parse_args
+    from train.rl.run import run
+
+    out = tmp_path_factory.mktemp("tank") / "run"
+    run(parse_args([
+        "--algo", "sac", "--residual", "passivity", "--tank", "--steps", "100", "--out",
+        str(out), "--episode-s", "1.0", "--eval-freq", "1000", "--checkpoint-freq", "1000",
+        "--disturbance", "periodic:1.0", "--hp", "learning_starts=50", "--hp",
+        "batch_size=16", "--hp", "policy_kwargs=dict(net_arch=[16])",
+    ]))  # fmt: skip
+    return out
+
+
+def test_a_tank_entrants_tank_is_recorded_in_every_episode(tmp_path, residual_run, tank_run):
+    tank, plain = f"sb3:{tank_run}", f"sb3:{residual_run}"
+    cfg = tiny(tmp_path / "v", seeds=2, entrants={"two_link": [tank, plain]})
+    out = run_verdict(cfg, progress=False)
+    assert vs.columns(cfg)[-2:] == ("tank_overdrawn_j", "tank_withheld_j")
+    df = load_frame(out / "episodes.csv", vs.columns(cfg))
+    mine = df[df["controller"] == tank]
+    assert len(mine) == 2 * 2 * 2 and mine["tank_withheld_j"].notna().all()
+    # the plant is the model here: the gate's prediction holds, the tank never goes below 0
+    assert (mine["tank_overdrawn_j"] == 0.0).all()
+    assert (
+        df.loc[df["controller"] != tank, ["tank_overdrawn_j", "tank_withheld_j"]].isna().all().all()
+    )
+    text = (out / "verdict.md").read_text()
+    assert "The energy tanks" in text and f"| two_link | {tank} | 8 | 0 | 0 |" in text
+    # a study without entrants keeps its columns (the committed verdict's)
+    assert vs.columns(tiny(tmp_path / "w")) == vs.COLUMNS
+
+
 def test_bad_entrants_are_refused_before_any_episode(tmp_path, residual_run):
     import shutil
 

@@ -386,10 +386,14 @@ def _lean_limit(env: gym.Env[Any, Any], policy: Predictor) -> int | None:
 
 
 def run_episode(
-    task: Task, settings: EpisodeSettings, keep_trace: bool = False
+    task: Task,
+    settings: EpisodeSettings,
+    keep_trace: bool = False,
+    inspect: Callable[[gym.Env[Any, Any]], dict[str, Any]] | None = None,
 ) -> tuple[dict[str, Any], dict[str, np.ndarray] | None]:
-    """Run ``task`` and return its CSV row (keys + metrics + wall time) and, with
-    ``keep_trace``, the time series for the example-episode plots."""
+    """Run ``task`` and return its CSV row (keys + metrics + wall time, and what
+    ``inspect(env)`` reads off the env once the episode ended) and, with ``keep_trace``, the
+    time series for the example-episode plots."""
     wall0 = time.perf_counter()
     policy: Predictor
     if task.controller.startswith(SB3_PREFIX):
@@ -415,6 +419,8 @@ def run_episode(
         "wall_s": time.perf_counter() - wall0,
     }
     row["level"] = f"{task.level:g}"
+    if inspect is not None:
+        row.update(inspect(env))
     trace = None
     if keep_trace:
         assert storage is not None

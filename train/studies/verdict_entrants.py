@@ -20,6 +20,7 @@ network base, whose reference is another run (``sb3:…``), not a controller.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -141,6 +142,49 @@ def entrant_comparisons(
         return pd.DataFrame()
     out = pd.concat(parts, ignore_index=True)
     return out[["robot", "reference", *[c for c in out.columns if c not in ("robot", "reference")]]]
+
+
+#: What a verdict with entrants records of each entrant's energy tank per episode (NaN for
+#: an episode without one): the most the tank went below zero over the episode, J — the
+#: gate predicts the residual's work on the nominal model, the plant may differ — and the
+#: energy the gate held back, J (``agents.energy_tank.EnergyTank``).
+TANK_COLUMNS = ("tank_overdrawn_j", "tank_withheld_j")
+
+
+def tank_record(env: Any) -> dict[str, float]:
+    """:data:`TANK_COLUMNS` of the episode ``env`` just ran (its residual wrapper's tank,
+    found through the wrappers; NaN without a tank)."""
+    from agents.residual_wrapper import ResidualWrapper
+
+    layer = env
+    while layer is not None and not isinstance(layer, ResidualWrapper):
+        layer = getattr(layer, "env", None)
+    tank = getattr(layer, "tank", None)
+    if tank is None:
+        return dict.fromkeys(TANK_COLUMNS, math.nan)
+    return {"tank_overdrawn_j": float(tank.overdrawn_j), "tank_withheld_j": float(tank.withheld_j)}
+
+
+def tank_markdown(df: pd.DataFrame) -> str:
+    """Markdown: per robot and tank entrant, in how many of its episodes the tank went below
+    zero (the balance's premise), the deepest overdraw and the median energy withheld."""
+    if "tank_overdrawn_j" not in df.columns:
+        return ""
+    tanked = df[df["tank_overdrawn_j"].notna()]
+    if tanked.empty:
+        return ""
+    lines = [
+        "| robot | entrant | episodes | tank overdrawn in | deepest overdraw (J) "
+        "| median withheld (J) |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    for (robot, name), g in tanked.groupby(["robot", "controller"], sort=True):
+        over = g["tank_overdrawn_j"] > 0.0
+        lines.append(
+            f"| {robot} | {name} | {len(g)} | {int(over.sum())} | "
+            f"{g['tank_overdrawn_j'].max():.3g} | {g['tank_withheld_j'].median():.3g} |"
+        )
+    return "\n".join(lines)
 
 
 def trained_env_steps(name: str) -> int:

@@ -67,10 +67,13 @@ from train.evaluation.verdict import (
     words,
 )
 from train.studies.rows import run_rows
+from train.studies.verdict_entrants import TANK_COLUMNS, tank_record
 from train.studies.verdict_paths import FOCUS, path_outcomes, path_table
 
 KEY_COLUMNS = ("robot", "path", "controller", "disturbance", "level", "seed", "episode")
 COLUMNS = (*KEY_COLUMNS, *METRIC_NAMES, "steps", "wall_s")
+#: A study with entrants also records each episode's energy tank (NaN without one).
+ENTRANT_COLUMNS = (*COLUMNS, *TANK_COLUMNS)
 #: The controller the verdict is about.
 
 
@@ -229,9 +232,16 @@ def _key_text(robot: str, path_seed: int, task: Task) -> tuple[str, ...]:
     return (robot, str(path_seed), *task.key())
 
 
+def columns(cfg: VerdictConfig) -> tuple[str, ...]:
+    """The columns of the study's ``episodes.csv``: :data:`ENTRANT_COLUMNS` with entrants,
+    else :data:`COLUMNS`."""
+    return ENTRANT_COLUMNS if cfg.entrants else COLUMNS
+
+
 def run_one(cfg: VerdictConfig, robot: str, path_seed: int, task: Task) -> dict[str, Any]:
-    """The CSV row of one episode (:data:`COLUMNS`)."""
-    row = run_episode(task, cfg.settings(robot, path_seed))[0]
+    """The CSV row of one episode (:func:`columns`)."""
+    inspect = tank_record if cfg.entrants else None
+    row = run_episode(task, cfg.settings(robot, path_seed), inspect=inspect)[0]
     return {**row, "robot": robot, "path": str(path_seed)}
 
 
@@ -257,25 +267,33 @@ def run_verdict(
     run = open_recorded_run(
         cfg.out, "episodes.csv", settings, rate_record(cfg.robots, cfg.controllers, cfg.gains),
         resume=resume, force=force, rerun_changed=rerun_changed, free=("resamples",),
-        columns=COLUMNS, key_columns=KEY_COLUMNS,
+        columns=columns(cfg), key_columns=KEY_COLUMNS,
         pair_of=lambda row: (row["robot"], row["controller"]),
     )  # fmt: skip
     out, episodes = run.out, run.results
     finished = {
-        tuple(r[k] for k in KEY_COLUMNS) for r in read_episodes(episodes, COLUMNS, KEY_COLUMNS)
+        tuple(r[k] for k in KEY_COLUMNS) for r in read_episodes(episodes, columns(cfg), KEY_COLUMNS)
     }
     todo = [t for t in cfg.tasks() if _key_text(*t) not in finished]
-    run_rows(run_one, [(cfg, *t) for t in todo], cfg.workers, episodes, COLUMNS, progress,
-             cfg.backend, cfg.ray_address)  # fmt: skip
+    run_rows(run_one, [(cfg, *t) for t in todo], cfg.workers, episodes, columns(cfg),
+             progress, cfg.backend, cfg.ray_address)  # fmt: skip
     write_report(cfg, out)
     return out
 
 
-def load_frame(path: Path) -> pd.DataFrame:
-    """``episodes.csv`` of a verdict study as a DataFrame, sorted by its key."""
-    rows = read_episodes(path, COLUMNS, KEY_COLUMNS, fill_missing=True)
-    df = pd.DataFrame(rows, columns=list(COLUMNS))
-    for col in (*METRIC_NAMES, "wall_s", "level"):
+def load_frame(path: Path, names: Sequence[str] | None = None) -> pd.DataFrame:
+    """``episodes.csv`` of a verdict study as a DataFrame, sorted by its key; its columns
+    ``names`` (:func:`columns`), by default those its header shows (with or without the
+    entrants' tank columns)."""
+    if names is None:
+        header: list[str] = []
+        if path.exists():
+            with path.open() as f:
+                header = f.readline().strip().split(",")
+        names = ENTRANT_COLUMNS if set(TANK_COLUMNS) <= set(header) else COLUMNS
+    rows = read_episodes(path, names, KEY_COLUMNS, fill_missing=True)
+    df = pd.DataFrame(rows, columns=list(names))
+    for col in (*METRIC_NAMES, *[c for c in TANK_COLUMNS if c in names], "wall_s", "level"):
         df[col] = df[col].astype(float)
     for col in ("steps", "seed", "episode"):
         df[col] = df[col].astype(int)
@@ -371,7 +389,7 @@ def grid_lines(cfg: VerdictConfig, table: pd.DataFrame, df: pd.DataFrame) -> lis
 
 def write_report(cfg: VerdictConfig, out: Path) -> None:
     """``rivals.csv``, ``aggregates.csv`` and ``verdict.md`` from ``out/episodes.csv``."""
-    df = load_frame(out / "episodes.csv")
+    df = load_frame(out / "episodes.csv", columns(cfg))
     if df.empty:
         (out / "verdict.md").write_text("# Verdict across robots and paths\n\nNo episodes yet.\n")
         return
@@ -437,6 +455,7 @@ def write_report(cfg: VerdictConfig, out: Path) -> None:
             entrant_comparisons,
             entrants_markdown,
             protocol_markdown,
+            tank_markdown,
         )
 
         entrants = entrant_comparisons(cfg.entrants, df, cfg.resamples)
@@ -450,4 +469,11 @@ def write_report(cfg: VerdictConfig, out: Path) -> None:
             "above are none of its training or evaluation paths):", "",
             protocol_markdown(cfg.entrants),
         ]  # fmt: skip
+        tanks = tank_markdown(df)
+        if tanks:
+            lines += [
+                "", "The energy tanks (a tank entrant's residual spends only what its tank "
+                "holds, `../shared/TANK.md`; the gate predicts the work on the nominal model, "
+                "so an overdraw is where the plant differed):", "", tanks,
+            ]  # fmt: skip
     (out / "verdict.md").write_text("\n".join(lines) + "\n")
