@@ -184,9 +184,13 @@ def rival_table(rivals: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def condition_order(conditions: list[tuple[str, float]]) -> list[tuple[str, float]]:
-    """Conditions as every table lists them: undisturbed first, then by preset and level."""
-    return sorted(set(conditions), key=lambda c: (c[0] != "none", c[0], float(c[1])))
+def condition_order(frame: pd.DataFrame) -> list[tuple[str, float]]:
+    """The conditions (disturbance, level) of ``frame``'s rows as the verdict's tables and
+    figure list them: undisturbed first, then by preset and level."""
+    conditions = {
+        (str(d), float(lv)) for d, lv in zip(frame["disturbance"], frame["level"], strict=True)
+    }
+    return sorted(conditions, key=lambda c: (c[0] != "none", c[0], c[1]))
 
 
 def grid_table(
@@ -215,9 +219,7 @@ def grid_table(
         if n:
             text += f" ({n}/{size} failed)"
         cells[key] = f"**{text}**" if r["outcome"] == "wins" else text
-    conditions = condition_order(
-        [(str(d), float(lv)) for d, lv in zip(rows["disturbance"], rows["level"], strict=True)]
-    )
+    conditions = condition_order(rows)
     lines = [
         "| condition | " + " | ".join(robots) + " |",
         "|---|" + "---|" * len(robots),

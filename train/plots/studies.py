@@ -3,7 +3,7 @@ verdict across robots."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -129,17 +129,14 @@ def verdict_plot(
     robots: list[str],
     path: Path,
     name_of: Callable[[str, float], str],
+    conditions: Sequence[tuple[str, float]],
 ) -> None:
     """The verdict across robots: one panel per robot, the focus's mean over its strongest
-    rival's (log scale, < 1: the focus is lower) in every condition (named by
-    ``name_of(disturbance, level)``), path distance (circles) and time-indexed error
-    (squares), coloured by the paired test's outcome
+    rival's (log scale, < 1: the focus is lower) in every condition (``conditions``, in
+    their order along the axis, each named by ``name_of(disturbance, level)``), path
+    distance (circles) and time-indexed error (squares), coloured by the paired test's outcome
     (:func:`train.studies.verdict_study.rivals`' table)."""
     plt = pyplot()
-    conditions = sorted(
-        {(d, lv) for d, lv in zip(rivals["disturbance"], rivals["level"], strict=True)},
-        key=lambda c: (c[0] != "none", c[0], c[1]),
-    )
     x_of = {c: i for i, c in enumerate(conditions)}
     fig, axes = plt.subplots(1, len(robots), figsize=(3.2 * len(robots) + 1, 4.2),
                              squeeze=False, sharey=True)  # fmt: skip

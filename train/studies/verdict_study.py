@@ -60,6 +60,7 @@ from train.evaluation.results import read_episodes
 from train.evaluation.verdict import (
     BOTH_METRICS,
     condition_name,
+    condition_order,
     grid_table,
     ranking_table,
     rival_comparisons,
@@ -403,7 +404,7 @@ def write_report(cfg: VerdictConfig, out: Path) -> None:
         from train.plots.studies import verdict_plot
 
         verdict_plot(table, [r for r in cfg.robots if r in set(table["robot"])],
-                     out / "verdict.png", condition_name)  # fmt: skip
+                     out / "verdict.png", condition_name, condition_order(table))  # fmt: skip
     wall_h = df["wall_s"].sum() / 3600.0
     lines = [
         "# Verdict across robots and paths",
