@@ -207,7 +207,13 @@ class PassivityController:
       at q̇ and σ̇ over the step. First order; stable for every dt where that part is stiff,
       where an explicit step needs a dt² + 2c dt < 4, which fails on a path's slow
       stretches (small M_r(s)) at ordinary control rates (``docs/control_rates.md``). On the
-      reference Δṡ = 0 exactly (s̈ = 0 and b = a).
+      reference Δṡ = 0 exactly (s̈ = 0 and b = a). The pump's term of s̈,
+      f_r/M_r = −k ½(ṡ² − 1)ṡ, is cubic in ṡ: explicit, it overshoots once dt J > 2,
+      J = k(3ṡ² − 1)/2 = −∂(f_r/M_r)/∂ṡ, and a ṡ thrown far from 1 (a push, a residual
+      policy's torque) then runs to ±inf in a few steps. Where dt J > 1 the step is
+      implicit in it too — dt J − 1 is added to the denominator, so Δṡ never exceeds
+      the Newton step −(f_r/M_r)/J — and where dt J ≤ 1 (ṡ near 1 inside the rate
+      limit k dt ≤ 1) the step is the one above, bit for bit.
     * ``"symplectic"``: symplectic Euler — ṡ ← ṡ + dt·s̈, s ← s + dt·ṡ(new),
       σ ← σ + dt·σ̇ (the explicit scheme the implicit one is compared with).
 
@@ -628,7 +634,8 @@ class PassivityController:
             a = (g.kappa + float(ref.qd @ (self.k_diag * ref.qd))) / ref.m_r
             c = (g.R + float(ref.qd @ (self.d_diag * ref.qd))) / ref.m_r
             b = (float(ref.qd @ (self.k_diag * qd)) + g.kappa * out.sigma_dot) / ref.m_r
-            sd_dot = dt * (out.s_dd + dt * (b - a * st.sd)) / (1.0 + c * dt + a * dt * dt)
+            limit = max(dt * g.k_pump * (1.5 * st.sd**2 - 0.5) - 1.0, 0.0)  # the pump's J
+            sd_dot = dt * (out.s_dd + dt * (b - a * st.sd)) / (1.0 + c * dt + a * dt * dt + limit)
         sd_new = st.sd + sd_dot
         self._state[:] = (st.s + dt * sd_new, sd_new, st.sigma + dt * out.sigma_dot)
         return out.tau
@@ -658,6 +665,8 @@ class PassivityController:
 
         def values(q: FloatArray, qd: FloatArray) -> FloatArray:
             st = self.state
+            if not (math.isfinite(st.s) and math.isfinite(st.sd)):  # a diverged law: NaN
+                return np.full(len(names), math.nan)
             ref = self.tables(st.s)
             speed2 = max(float(qd @ self.model.mass_matrix(q) @ qd), 0.0)  # q̇ᵀMq̇ (J)
             err = ref.q - q  # (n,) rad

@@ -208,7 +208,9 @@ def law_step(
                 c += gains[d0 + i] * ref[n + i] * ref[n + i]
                 b += gains[k0 + i] * ref[n + i] * qd[i]
             a, c, b = a / m_r, c / m_r, b / m_r
-            sd_dot = dt * (s_dd + dt * (b - a * sd)) / (1.0 + c * dt + a * dt * dt)
+            # the pump's damping of ṡ, J = −∂(f_r/M_r)/∂ṡ: implicit past dt J = 1
+            limit = max(dt * k_pump * (1.5 * sd * sd - 0.5) - 1.0, 0.0)
+            sd_dot = dt * (s_dd + dt * (b - a * sd)) / (1.0 + c * dt + a * dt * dt + limit)
         sd_new = sd + sd_dot
         state[0] = s + dt * sd_new
         state[1] = sd_new

@@ -44,6 +44,10 @@ frozen at s; its spectral radius ρ is the factor by which a perturbation grows 
    it first: the two-link at its fight-tuned λ = 23 1/s (M̄_r ≈ 0.08, k ≈ 300 1/s) diverged
    undisturbed at 100 Hz on 5 of 12 random paths (k dt 2.8–5.7). The stated limit keeps
    k dt ≤ :data:`PUMP_LIMIT` = 1 (monotone decay, a factor 2 inside the growth boundary).
+   Off the reference the term is cubic, −k ½(ṡ² − 1)ṡ, and its slope k(3ṡ² − 1)/2 grows
+   with ṡ: an explicit step runs away at any rate once ṡ is thrown past √(1 + 4/(k dt))
+   (≈ 3.0 at 250 Hz on the tuned two-link), so the controller's step turns implicit in it
+   where its slope times dt passes 1 (:class:`~agents.passivity.PassivityController`).
 """
 
 from __future__ import annotations

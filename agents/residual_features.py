@@ -100,10 +100,13 @@ class ControllerFeatures:
 
     def __call__(self, q: FloatArray, qd: FloatArray, base_ratio: FloatArray) -> FloatArray:
         """Features at measured (q, q̇) (rad, rad/s), clipped to [low, high];
-        ``base_ratio`` is the last τ_base / τ_max, shape (n,)."""
-        x = (
-            base_ratio
-            if self.block is None
-            else np.concatenate([self.block.values(q, qd), base_ratio])
-        )
+        ``base_ratio`` is the last τ_base / τ_max, shape (n,). All NaN where the block is
+        NaN (a base whose own state diverged: the residual wrapper ends the episode)."""
+        if self.block is None:
+            x = base_ratio
+        else:
+            values = self.block.values(q, qd)
+            if np.isnan(values).any():
+                return np.full(len(self.names), np.nan)
+            x = np.concatenate([values, base_ratio])
         return np.minimum(np.maximum(np.nan_to_num(x), self.low), self.high)

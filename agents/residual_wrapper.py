@@ -372,7 +372,11 @@ class ResidualWrapper(
         info["tau_base_nm"] = tau_base
         info["tau_residual_nm"] = tau_res
         info["controller"] = self.controller.diagnostics()
-        self._last_obs = self._augment(obs)
+        augmented = self._augment(obs)
+        if not np.all(np.isfinite(augmented)):  # the base's own state diverged: as above
+            info.update(unstable=True, controller_diverged=True)
+            return self._last_obs, -float(u.config.unstable_penalty), True, False, info
+        self._last_obs = augmented
         return self._last_obs, reward, terminated, truncated, info
 
 

@@ -95,3 +95,33 @@ def test_the_residual_env_terminates_with_the_penalty_and_a_finite_observation()
         assert wrapped.observation_space.contains(obs)
     finally:
         wrapped.close()
+
+
+def test_a_residual_env_whose_base_state_diverges_ends_as_unstable():
+    """The base's torque can still be finite in the step its own state runs to inf (the
+    passivity law's phase s, ṡ): the observation's features of that state are then NaN,
+    and the step ends the episode as unstable, its last finite observation returned —
+    never a math error inside ``step`` (a residual policy's training died of one)."""
+    env = gym.make("ptrack_gym/TwoLinkTrack-v0", max_episode_steps=50)
+    wrapped = ResidualWrapper(env, "passivity", scale_fraction=0.1, include_controller_state=True)
+    try:
+        obs, _ = wrapped.reset(seed=0)
+        zero = np.zeros(wrapped.action_space.shape, dtype=np.float32)
+        obs, _, terminated, _, _ = wrapped.step(zero)
+        assert not terminated
+        last = obs
+        ctrl, law_step = wrapped.controller, wrapped.controller.step
+
+        def diverging_step(q: np.ndarray, qd: np.ndarray, dt: float) -> np.ndarray:
+            tau = law_step(q, qd, dt)  # finite, from the finite state at the sample
+            ctrl._state[1] = np.inf  # ṡ after the step
+            return tau
+
+        ctrl.step = diverging_step  # type: ignore[method-assign]
+        obs, reward, terminated, truncated, info = wrapped.step(zero)
+        assert terminated and not truncated
+        assert info["unstable"] and info["controller_diverged"]
+        assert reward == -env.unwrapped.config.unstable_penalty
+        assert np.array_equal(obs, last) and wrapped.observation_space.contains(obs)
+    finally:
+        wrapped.close()
