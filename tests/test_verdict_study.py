@@ -342,6 +342,10 @@ def test_an_entrant_is_judged_on_the_test_paths_against_its_base(tmp_path, resid
     assert name not in set(rivals["rival"])  # not a rival of the passivity controller
     text = (out / "verdict.md").read_text()
     assert "## Learned entrants on the test paths" in text
+    groups = pd.read_csv(out / "entrant_groups.csv")  # one seed: its own ratio is the IQM
+    assert len(groups) == len(entrants) and (groups["seeds"] == 1).all()
+    assert np.allclose(groups["iqm_ratio"], entrants["ratio"], rtol=1e-5)
+    assert f"the one a model card ships): run: {name}." in text
     assert f"| two_link | {name} | sac | 100 | the default path | periodic:1.0 | ±0 |" in text
 
 
@@ -417,6 +421,9 @@ def test_bad_entrants_are_refused_before_any_episode(tmp_path, residual_run):
     (moved / "config.yml").write_text(yaml.safe_dump(saved))
     with pytest.raises(InvalidConfigError, match="base ran at default rates since changed"):
         tiny(tmp_path / "c", entrants={"two_link": [f"sb3:{moved}"]}).validate()
+    with pytest.raises(InvalidConfigError, match=r"runs at 250 Hz, the verdict's controllers "
+                       r"at 1000 Hz: .* set control_hz: 250"):  # fmt: skip
+        tiny(tmp_path / "d", control_hz=1000.0, entrants={"two_link": [name]}).validate()
 
 
 # -- Ray -------------------------------------------------------------------------------------

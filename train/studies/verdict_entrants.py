@@ -15,21 +15,26 @@ Refused before any episode: an entrant that is not ``sb3:``, a run of another ro
 whose training or evaluation paths include a test path, a residual whose base ran with other
 gains than the verdict's (a pure policy that imitated a controller: its expert's gains), a
 reference that is not among the verdict's controllers — which refuses a residual over a
-network base, whose reference is another run (``sb3:…``), not a controller.
+network base, whose reference is another run (``sb3:…``), not a controller — and a run at
+another control rate than the verdict's (a residual's base and its reference would then
+differ in rate as well as in the residual).
 """
 
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from agents.registry import still_pinned
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import ROBOTS
 from train.common.paired_tests import TooFewPairsError, paired_comparisons
+from train.common.statistics import iqm
 from train.evaluation.verdict import BOTH_METRICS, condition_name, words
 
 #: What a pure policy that imitated nothing is compared with.
@@ -65,8 +70,10 @@ def check_entrants(
     controllers: Sequence[str],
     test_paths: Sequence[int],
     gains: str,
+    control_hz: float | None = None,
 ) -> None:
-    """Raise :class:`InvalidConfigError` for a bad entrant (module docstring)."""
+    """Raise :class:`InvalidConfigError` for a bad entrant (module docstring); with
+    ``control_hz``, also one that runs at another rate than the verdict's controllers."""
     from train.evaluation.policies import SB3_PREFIX, check_sb3_run
 
     if not isinstance(entrants, Mapping):
@@ -109,6 +116,13 @@ def check_entrants(
                     f"{name}'s base ran at {gains} rates since changed ({pinned}); the "
                     f"verdict's {c['residual']} runs today's: compare an entrant with the "
                     "controller it was built on"
+                )
+            own_hz = float((run.get("derived") or {}).get("control_hz") or 0.0)
+            if control_hz is not None and own_hz and abs(own_hz - control_hz) > 1e-9:
+                raise InvalidConfigError(
+                    f"{name} runs at {own_hz:g} Hz, the verdict's controllers at "
+                    f"{control_hz:g} Hz: its comparison with its reference would measure the "
+                    f"rate as well; set control_hz: {own_hz:g}"
                 )
             reference = entrant_reference(name)
             if reference not in controllers:
@@ -239,5 +253,67 @@ def entrants_markdown(table: pd.DataFrame) -> str:
             f"| {r['robot']} | {r['controller']} | {r['reference']} | "
             f"{condition_name(r['disturbance'], float(r['level']))} | {words(r['metric'])} | "
             f"{r['ratio']:.3g} | {r['p_holm']:.3g} | {r['mark']} | {int(r['pairs'])} |"
+        )
+    return "\n".join(lines)
+
+
+def entrant_group(name: str) -> str:
+    """The group of entrant ``name`` — its run folder's name without the ``_s<seed>``
+    suffix a campaign gives it (``sb3:runs/x/residual-passivity_s3`` → ``residual-passivity``)."""
+    folder = name.removeprefix("sb3:").partition("@")[0].rstrip("/").rsplit("/", 1)[-1]
+    return re.sub(r"_s\d+$", "", folder)
+
+
+def seed_groups(table: pd.DataFrame, df: pd.DataFrame) -> pd.DataFrame:
+    """Per robot, reference, group of seeds (:func:`entrant_group`), condition and metric:
+    the seeds, the IQM over seeds of each seed's entrant / reference ratio of means (and
+    its range), how many seeds were resolved better or worse than the reference (Holm
+    marks of ``table``, :func:`entrant_comparisons`) and the group's failed episodes
+    (issue 39: "the spread over seeds ... and the IQM over seeds")."""
+    if not len(table):
+        return pd.DataFrame()
+    t = table.assign(group=table["controller"].map(entrant_group))
+    failed = df.groupby(["robot", "controller", "disturbance", "level"])["failed"].sum()
+    rows = []
+    keys = ["robot", "reference", "group", "disturbance", "level", "metric"]
+    for key, g in t.groupby(keys, sort=False):
+        ratios = g["ratio"].to_numpy(dtype=float)
+        robot, _, _, dist, level, _ = key
+        fails = sum(int(failed.get((robot, c, dist, level), 0)) for c in g["controller"])
+        rows.append({
+            **dict(zip(keys, key, strict=True)), "seeds": len(g),
+            "iqm_ratio": float(iqm(ratios)), "min_ratio": float(ratios.min()),
+            "max_ratio": float(ratios.max()), "better": int((g["mark"] == "better").sum()),
+            "worse": int((g["mark"] == "worse").sum()), "failed": fails,
+        })  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def representative_seed(table: pd.DataFrame, group: str, metric: str = "path_dist_rms") -> str:
+    """The entrant of ``group`` shipped as its model: the seed whose geometric mean of the
+    ``metric`` ratios over every condition is the median of the group's (the lower median
+    for an even count) — a typical seed, not the best."""
+    t = table[(table["controller"].map(entrant_group) == group) & (table["metric"] == metric)]
+    score = t.groupby("controller")["ratio"].apply(lambda r: float(np.exp(np.log(r).mean())))
+    ordered = score.sort_values(kind="stable")
+    return str(ordered.index[(len(ordered) - 1) // 2])
+
+
+def seed_groups_markdown(groups: pd.DataFrame) -> str:
+    """Markdown of :func:`seed_groups`."""
+    if not len(groups):
+        return ""
+    lines = [
+        "| robot | group | reference | condition | metric | seeds | IQM of ratios "
+        "| range | better / worse (seeds) | failed episodes |",
+        "|---|---|---|---|---|---:|---:|---|---|---:|",
+    ]
+    for _, r in groups.iterrows():
+        lines.append(
+            f"| {r['robot']} | {r['group']} | {r['reference']} | "
+            f"{condition_name(r['disturbance'], float(r['level']))} | {words(r['metric'])} | "
+            f"{int(r['seeds'])} | {r['iqm_ratio']:.3g} | {r['min_ratio']:.3g}–"
+            f"{r['max_ratio']:.3g} | {int(r['better'])} / {int(r['worse'])} | "
+            f"{int(r['failed'])} |"
         )
     return "\n".join(lines)

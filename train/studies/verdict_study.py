@@ -186,8 +186,9 @@ class VerdictConfig:
             from train.studies.verdict_entrants import check_entrants
 
             check_entrants(
-                self.entrants, self.robots, self.controllers, self.test_paths, self.gains
-            )
+                self.entrants, self.robots, self.controllers, self.test_paths, self.gains,
+                self.control_hz,
+            )  # fmt: skip
 
     def conditions(self) -> list[tuple[str, float]]:
         """(preset, level) of every condition: "none" once at level 0, the others at each level."""
@@ -454,16 +455,34 @@ def write_report(cfg: VerdictConfig, out: Path) -> None:
     if cfg.entrants:
         from train.studies.verdict_entrants import (
             entrant_comparisons,
+            entrant_group,
             entrants_markdown,
             protocol_markdown,
+            representative_seed,
+            seed_groups,
+            seed_groups_markdown,
             tank_markdown,
         )
 
         entrants = entrant_comparisons(cfg.entrants, df, cfg.resamples)
         entrants.to_csv(out / "entrants.csv", index=False, float_format="%.6g")
+        groups = seed_groups(entrants, df)
+        groups.to_csv(out / "entrant_groups.csv", index=False, float_format="%.6g")
+        lines += ["", "## Learned entrants on the test paths", ""]
+        if len(groups):
+            names = sorted(set(map(entrant_group, entrants["controller"])))
+            typical = ", ".join(f"{g}: {representative_seed(entrants, g)}" for g in names)
+            lines += [
+                "Over the seeds of each group (every seed's final model, none selected): "
+                "the IQM over seeds of each seed's entrant / reference ratio of means, its "
+                "range, and in how many seeds the exact paired test (below) resolved the "
+                "entrant better or worse than its reference; `entrant_groups.csv`.", "",
+                seed_groups_markdown(groups), "",
+                f"A typical seed of each group (median geometric-mean ratio on path "
+                f"distance over the conditions; the one a model card ships): {typical}.", "",
+            ]  # fmt: skip
         lines += [
-            "", "## Learned entrants on the test paths", "",
-            "Each against its reference (a residual's base, else PD + gravity or the "
+            "Each seed against its reference (a residual's base, else PD + gravity or the "
             "controller it imitated): exact paired sign-flip tests over the (path, seed) "
             "pairs, Holm over one robot, metric and reference; `entrants.csv`.", "",
             entrants_markdown(entrants), "", "What each entrant trained on (the test paths "
