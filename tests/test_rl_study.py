@@ -506,7 +506,7 @@ def test_the_curves_of_family_trained_runs_run_under_their_families() -> None:
 
 def test_the_tuning_budget_of_a_base_is_read_from_its_tuned_file(tmp_path, monkeypatch) -> None:
     import agents.registry as registry
-    from train.rl.study_tables import tuning_env_steps
+    from train.evaluation.protocol import tuning_env_steps
 
     monkeypatch.setattr(registry, "TUNED_DIR", tmp_path)
     (tmp_path / "two_link-passivity.yml").write_text("rates: {}\nstudy: {env_steps: 1234}\n")

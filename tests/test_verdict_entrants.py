@@ -72,3 +72,13 @@ def test_the_shipped_seed_is_the_lower_median_and_no_table_gives_no_groups() -> 
     assert representative_seed(table, "g") == seeds[3]  # ratios 1, 2, 3, 4: the lower median
     assert seed_groups(pd.DataFrame(), pd.DataFrame()).empty
     assert seed_groups_markdown(pd.DataFrame()) == ""
+
+
+def test_the_protocol_table_of_a_run_that_is_not_here_says_so(tmp_path) -> None:
+    from train.evaluation.protocol import protocol_markdown, protocol_section
+
+    gone = f"sb3:{tmp_path / 'gone'}"
+    assert f"| {gone} | – | – | – | – | (its run folder is not here) | – | – |" in (
+        protocol_markdown([gone])
+    )
+    assert protocol_section(["passivity", "pd_gravity"]) == []

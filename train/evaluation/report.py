@@ -51,6 +51,7 @@ from train.common.statistics import (
     iqm_and_mean,
     paired_comparisons,
 )
+from train.evaluation.protocol import protocol_section
 from train.evaluation.results import no_disturbance
 from train.evaluation.verdict import (
     condition_name,
@@ -472,6 +473,7 @@ def write_report(
             "",
             rival_table(rivals),
         ]
+    lines += protocol_section(list(dict.fromkeys(df["controller"])))
     lines += [
         "",
         "## Rankings",

@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from train.common.statistics import bootstrap_ci
+from train.evaluation.protocol import tuning_env_steps
 from train.rl.study_runs import Run, final_steps, is_checkpoint_entry, reference_of
 
 
@@ -56,21 +57,6 @@ def training_curves(runs: Sequence[Run], window: int = 10) -> pd.DataFrame:
             rows.append({"group": r.group, "seed": r.seed, "steps": int(steps),
                          "reward_per_step": float(value)})  # fmt: skip
     return pd.DataFrame(rows, columns=["group", "seed", "steps", "reward_per_step"])
-
-
-def tuning_env_steps(robot: str, controller: str) -> int | None:
-    """The env steps the tuning fight spent on ``controller`` of ``robot`` (its tuned file's
-    ``study.env_steps``, as the file stands now: a later fight's file replaces the one a
-    run trained with); None without a file, or for a file of an older protocol."""
-    import yaml
-
-    from agents.registry import TUNED_DIR
-
-    path = TUNED_DIR / f"{robot}-{controller}.yml"
-    if not path.exists():
-        return None
-    steps = ((yaml.safe_load(path.read_text()) or {}).get("study") or {}).get("env_steps")
-    return None if steps is None else int(steps)
 
 
 def protocol_table(runs: Sequence[Run], test: str) -> str:

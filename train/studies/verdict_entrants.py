@@ -201,43 +201,6 @@ def tank_markdown(df: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def trained_env_steps(name: str) -> int:
-    """Env steps entrant ``name`` trained: its last checkpoint (``sb3:<run>@<steps>``: those
-    steps; else the run's newest ``checkpoints/rl_model_<k>_steps.zip``) × its decision
-    period (checkpoints count decisions); 0 without a checkpoint."""
-    from pathlib import Path
-
-    from train.common.checkpoint_files import latest_checkpoint
-
-    run, _, at = name.removeprefix("sb3:").partition("@")
-    if at.isdigit():
-        last = int(at)
-    else:
-        found = latest_checkpoint(Path(run))
-        last = found[0] if found else 0
-    return last * int(_run_config(name).get("decision_every", 1))
-
-
-def protocol_markdown(entrants: Mapping[str, Sequence[str]]) -> str:
-    """Markdown: what each entrant trained on — algorithm, steps, paths, disturbance
-    families, mass randomisation — (issue 39's protocol, in the report that judges it)."""
-    lines = [
-        "| robot | entrant | algorithm | steps | trained on paths | trained under "
-        "| randomized masses |",
-        "|---|---|---|---:|---|---|---:|",
-    ]
-    for robot, names in entrants.items():
-        for name in names:
-            c = _run_config(name)
-            lines.append(
-                f"| {robot} | {name} | {c.get('algo', 'sac')} | {trained_env_steps(name)} "
-                f"| {c.get('train_paths') or 'the default path'} "
-                f"| {c.get('train_families') or c.get('disturbance', 'none')} "
-                f"| ±{float(c.get('randomize_mass', 0.0)):g} |"
-            )
-    return "\n".join(lines)
-
-
 def entrants_markdown(table: pd.DataFrame) -> str:
     """Markdown: per robot, each entrant against its reference in every condition, both
     metrics (ratio of means, Holm-adjusted p, mark)."""

@@ -453,11 +453,11 @@ def write_report(cfg: VerdictConfig, out: Path) -> None:
         )
         lines += ["", ranking_table(sub, BOTH_METRICS)]
     if cfg.entrants:
+        from train.evaluation.protocol import protocol_markdown
         from train.studies.verdict_entrants import (
             entrant_comparisons,
             entrant_group,
             entrants_markdown,
-            protocol_markdown,
             representative_seed,
             seed_groups,
             seed_groups_markdown,
@@ -487,7 +487,7 @@ def write_report(cfg: VerdictConfig, out: Path) -> None:
             "pairs, Holm over one robot, metric and reference; `entrants.csv`.", "",
             entrants_markdown(entrants), "", "What each entrant trained on (the test paths "
             "above are none of its training or evaluation paths):", "",
-            protocol_markdown(cfg.entrants),
+            protocol_markdown([n for names in cfg.entrants.values() for n in names]),
         ]  # fmt: skip
         tanks = tank_markdown(df)
         if tanks:
