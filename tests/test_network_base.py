@@ -214,3 +214,33 @@ def test_train_refuses_a_base_of_another_robot_before_writing_anything(tmp_path:
         )  # fmt: skip
         validate(tuned)
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
+def test_the_evaluation_policy_acts_as_sb3_predict_bit_for_bit(tmp_path: Path, algo: str) -> None:
+    """``SB3Policy`` skips SB3's per-call ``set_training_mode(False)`` (half of an
+    evaluation episode's time) and repeats the rest of ``BasePolicy.predict``: its actions
+    equal ``model.predict(deterministic=True)`` bit for bit, for one observation and a
+    batch, saturated or not — and it still does after something switched the policy to
+    training mode."""
+    from stable_baselines3 import PPO
+
+    from train.evaluation.policies import SB3Policy
+
+    env = gym.make(TWO_LINK, **SHORT)
+    kwargs = {"policy_kwargs": {"net_arch": [16]}, "seed": 0, "device": "cpu"}
+    model = {"sac": SAC, "td3": TD3, "ppo": PPO}[algo]("MlpPolicy", env, **kwargs)
+    policy = SB3Policy(model, None)
+    assert policy._fast
+    rng = np.random.default_rng(0)
+    for scale in (0.1, 1.0, 30.0):
+        obs = (scale * rng.normal(size=(5, *env.observation_space.shape))).astype(np.float32)
+        for x in (obs[0], obs):
+            mine, _ = policy.predict(x)
+            theirs, _ = model.predict(x, deterministic=True)
+            assert mine.shape == theirs.shape and np.array_equal(mine, theirs)
+    model.policy.set_training_mode(True)
+    mine, _ = policy.predict(obs[1])
+    assert not model.policy.training
+    assert np.array_equal(mine, model.predict(obs[1], deterministic=True)[0])
+    env.close()

@@ -243,6 +243,9 @@ def test_an_existing_study_is_refused_without_resume_or_force(tmp_path):
         ("test_paths", [], "test_paths must be a non-empty list"),
         ("test_paths", [1, 1], "duplicates"),
         ("levels", [0.0], "levels must be positive"),
+        ("levels_of", {"periodic": []}, "levels must be positive"),
+        ("levels_of", {"push": [1.0]}, "levels_of: presets of disturbances"),
+        ("levels_of", {"none": [1.0]}, "levels_of: presets of disturbances"),
         ("seeds", 0, "seeds must be an integer >= 1"),
         ("gains", "best", "gains must be one of"),
         # a preset the robot cannot take here: the impulse's onset window does not fit 1 s
@@ -253,6 +256,13 @@ def test_bad_input_is_refused_before_any_episode(tmp_path, field, value, match):
     with pytest.raises(InvalidConfigError, match=match):
         run_verdict(tiny(tmp_path / "v", **{field: value}), progress=False)
     assert not (tmp_path / "v" / "episodes.csv").exists()
+
+
+def test_a_preset_may_have_its_own_levels() -> None:
+    cfg = tiny("/nonexistent", disturbances=["none", "periodic", "noise"], levels=[1.0],
+               levels_of={"noise": [1.0, 2.0]})  # fmt: skip
+    cfg.validate()
+    assert cfg.conditions() == [("none", 0.0), ("periodic", 1.0), ("noise", 1.0), ("noise", 2.0)]
 
 
 def test_a_test_path_seed_without_an_admissible_path_is_refused(tmp_path, no_admissible_path):

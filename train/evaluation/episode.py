@@ -158,19 +158,29 @@ def _disturbance_text(disturbance: str, level: float) -> str | None:
 #: bounded, least recently used evicted and closed: a worker's memory stays flat however
 #: many conditions it runs.
 _ENV_CACHE: OrderedDict[tuple[Any, ...], gym.Env[Any, Any]] = OrderedDict()
-_SB3_CACHE: OrderedDict[tuple[Any, ...], tuple[gym.Env[Any, Any], Predictor]] = OrderedDict()
+_SB3_ENV_CACHE: OrderedDict[tuple[Any, ...], gym.Env[Any, Any]] = OrderedDict()
+_POLICY_CACHE: OrderedDict[tuple[Any, ...], Predictor] = OrderedDict()
 #: Most envs a worker keeps (an iiwa env holds ~30 MB, mostly its PyBullet client).
 CACHE_SIZE = 16
+#: Most policies a worker keeps (~1 MB each): more than a study's entrants of one robot,
+#: which its tasks cycle through (a smaller LRU would evict each before its next use).
+POLICY_CACHE_SIZE = 128
 
 
-def _cached(cache: OrderedDict[tuple[Any, ...], Any], key: tuple[Any, ...], build: Any) -> Any:
+def _cached(
+    cache: OrderedDict[tuple[Any, ...], Any],
+    key: tuple[Any, ...],
+    build: Any,
+    size: int = CACHE_SIZE,
+) -> Any:
     if key in cache:
         cache.move_to_end(key)
         return cache[key]
     value = cache[key] = build()
-    while len(cache) > CACHE_SIZE:
+    while len(cache) > size:
         _, old = cache.popitem(last=False)
-        (old[0] if isinstance(old, tuple) else old).close()
+        if isinstance(old, gym.Env):
+            old.close()
     return value
 
 
@@ -208,40 +218,52 @@ def _env(settings: EpisodeSettings, disturbance: str, level: float) -> gym.Env[A
 def _sb3_env_and_policy(
     controller: str, settings: EpisodeSettings, disturbance: str, level: float
 ) -> tuple[gym.Env[Any, Any], Predictor]:
-    def build() -> tuple[gym.Env[Any, Any], Predictor]:
-        import torch
+    """The env a run ``controller`` (``sb3:…``) acts in under the condition, and its policy.
 
-        from train.evaluation.policies import (  # SB3 only for a model
-            deploy_safeguards,
-            load_sb3_policy,
-            sb3_files,
-        )
+    Both cached per worker, apart: the policy per run (loading one costs ~0.1–1 s), the env
+    per what builds it — the run's observation, residual base, scale, rate, wrapper
+    arguments and the condition — so the seeds of one campaign group share their envs
+    (a residual env's base tables cost ~1 s a path). An env's episode starts from
+    ``reset(seed)`` alone, so which run used it before changes nothing."""
+    from train.evaluation.policies import deploy_safeguards, load_sb3_policy, run_config, sb3_files
+
+    cfg = run_config(sb3_files(controller)[0])
+    c, derived = cfg["config"], cfg["derived"]
+    wrapper = (
+        {  # the gate acts on the torque; the penalty only on the reward
+            **trained_wrapper_kwargs(cfg),  # the base's rates as it trained over
+            **deploy_safeguards(sb3_files(controller)[0]),  # deploy.yml's gate wins
+        }
+        if c["residual"] != "none"
+        else None
+    )
+    build_args = (
+        c["env_id"],  # the run's own observation (plain, or the preview id's)
+        c["residual"],
+        c["scale_fraction"],
+        derived["control_hz"],
+        round(settings.episode_s * derived["control_hz"]),
+        settings.start,
+        _disturbance_text(disturbance, level),
+    )
+    env_key = (*build_args, repr(wrapper), _env_key(settings), disturbance, level)
+    env = _cached(
+        _SB3_ENV_CACHE,
+        env_key,
+        lambda: build_env(*build_args, extra=settings_kwargs(settings), residual_kwargs=wrapper),
+    )
+
+    def load() -> Predictor:
+        import torch
 
         # One observation per call: more torch threads only contend with the sweep's other
         # runners (the sweep's own process runs episodes too, beside its spawned workers).
         torch.set_num_threads(1)
-        policy, cfg = load_sb3_policy(controller, settings.env_id)
-        c, derived = cfg["config"], cfg["derived"]
-        env = build_env(
-            c["env_id"],  # the run's own observation (plain, or the preview id's)
-            c["residual"],
-            c["scale_fraction"],
-            derived["control_hz"],
-            round(settings.episode_s * derived["control_hz"]),
-            settings.start,
-            _disturbance_text(disturbance, level),
-            extra=settings_kwargs(settings),
-            residual_kwargs={  # the gate acts on the torque; the penalty only on the reward
-                **trained_wrapper_kwargs(cfg),  # the base's rates as it trained over
-                **deploy_safeguards(sb3_files(controller)[0]),  # deploy.yml's gate wins
-            }
-            if c["residual"] != "none"
-            else None,
-        )
+        policy, _ = load_sb3_policy(controller, settings.env_id)
         k = int(c.get("decision_every", 1))
-        return env, (policy if k == 1 else HeldActionPolicy(policy, k))
+        return policy if k == 1 else HeldActionPolicy(policy, k)
 
-    return _cached(_SB3_CACHE, (controller, _env_key(settings), disturbance, level), build)
+    return env, _cached(_POLICY_CACHE, (controller, settings.env_id), load, POLICY_CACHE_SIZE)
 
 
 def phase_reader(controller: Controller) -> Callable[[], float]:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -280,3 +281,46 @@ def seed_groups_markdown(groups: pd.DataFrame) -> str:
             f"{int(r['failed'])} |"
         )
     return "\n".join(lines)
+
+
+def entrants_section(
+    entrants: Mapping[str, Sequence[str]], df: pd.DataFrame, resamples: int, out: Path
+) -> list[str]:
+    """The verdict report's lines on its learned entrants — over the seeds of each group,
+    each seed against its reference, what each trained on, their energy tanks — writing
+    ``entrants.csv`` and ``entrant_groups.csv`` into ``out``."""
+    from train.evaluation.protocol import protocol_markdown
+
+    table = entrant_comparisons(entrants, df, resamples)
+    table.to_csv(out / "entrants.csv", index=False, float_format="%.6g")
+    groups = seed_groups(table, df)
+    groups.to_csv(out / "entrant_groups.csv", index=False, float_format="%.6g")
+    lines = ["", "## Learned entrants on the test paths", ""]
+    if len(groups):
+        names = sorted(set(map(entrant_group, table["controller"])))
+        typical = ", ".join(f"{g}: {representative_seed(table, g)}" for g in names)
+        lines += [
+            "Over the seeds of each group (every seed's final model, none selected): "
+            "the IQM over seeds of each seed's entrant / reference ratio of means, its "
+            "range, and in how many seeds the exact paired test (below) resolved the "
+            "entrant better or worse than its reference; `entrant_groups.csv`.", "",
+            seed_groups_markdown(groups), "",
+            f"A typical seed of each group (median geometric-mean ratio on path "
+            f"distance over the conditions; the one a model card ships): {typical}.", "",
+        ]  # fmt: skip
+    lines += [
+        "Each seed against its reference (a residual's base, else PD + gravity or the "
+        "controller it imitated): exact paired sign-flip tests over the (path, seed) "
+        "pairs, Holm over one robot, metric and reference; `entrants.csv`.", "",
+        entrants_markdown(table), "", "What each entrant trained on (the test paths "
+        "above are none of its training or evaluation paths):", "",
+        protocol_markdown([n for names in entrants.values() for n in names]),
+    ]  # fmt: skip
+    tanks = tank_markdown(df)
+    if tanks:
+        lines += [
+            "", "The energy tanks (a tank entrant's residual spends only what its tank "
+            "holds, `../shared/TANK.md`; the gate predicts the work on the nominal model, "
+            "so an overdraw is where the plant differed):", "", tanks,
+        ]  # fmt: skip
+    return lines

@@ -108,6 +108,8 @@ class VerdictConfig:
     """Presets of ``ptrack_gym.disturbances.PRESETS`` ("none": undisturbed, one level)."""
     levels: list[float] = field(default_factory=lambda: [1.0, 2.0])
     """Levels of every preset but ``none``."""
+    levels_of: dict[str, list[float]] = field(default_factory=dict)
+    """Per preset, its levels in place of ``levels`` (``{mismatch: [1.0, 2.0]}``)."""
     seeds: int = 10
     """Episodes per path and condition: seeds 0 … ``seeds`` − 1 (reset seed 10 000·seed)."""
     episode_s: float = 8.0
@@ -138,11 +140,16 @@ class VerdictConfig:
         check_known(self.robots, self.controllers, self.disturbances)
         if any(d != "none" for d in self.disturbances) and not self.levels:
             raise InvalidConfigError("levels must not be empty when a preset is disturbed")
-        for lv in self.levels:
-            if isinstance(lv, bool) or not (
-                isinstance(lv, (int, float)) and math.isfinite(lv) and lv > 0
-            ):
-                raise InvalidConfigError(f"levels must be positive numbers, got {self.levels}")
+        if not isinstance(self.levels_of, dict) or not set(self.levels_of) <= set(
+            self.disturbances
+        ) - {"none"}:
+            raise InvalidConfigError(f"levels_of: presets of disturbances, got {self.levels_of}")
+        for levels in (self.levels, *self.levels_of.values()):
+            if not isinstance(levels, list) or not levels or not all(
+                isinstance(lv, (int, float)) and not isinstance(lv, bool)
+                and math.isfinite(lv) and lv > 0 for lv in levels
+            ):  # fmt: skip
+                raise InvalidConfigError(f"levels must be positive numbers, got {levels}")
         for p in self.test_paths:
             if isinstance(p, bool) or not isinstance(p, int):
                 raise InvalidConfigError(f"test_paths must be integer seeds, got {p!r}")
@@ -194,7 +201,10 @@ class VerdictConfig:
         """(preset, level) of every condition: "none" once at level 0, the others at each level."""
         out = [("none", 0.0)] if "none" in self.disturbances else []
         return out + [
-            (d, float(lv)) for d in self.disturbances if d != "none" for lv in self.levels
+            (d, float(lv))
+            for d in self.disturbances
+            if d != "none"
+            for lv in self.levels_of.get(d, self.levels)
         ]
 
     def tasks(self) -> list[tuple[str, int, Task]]:
@@ -453,47 +463,7 @@ def write_report(cfg: VerdictConfig, out: Path) -> None:
         )
         lines += ["", ranking_table(sub, BOTH_METRICS)]
     if cfg.entrants:
-        from train.evaluation.protocol import protocol_markdown
-        from train.studies.verdict_entrants import (
-            entrant_comparisons,
-            entrant_group,
-            entrants_markdown,
-            representative_seed,
-            seed_groups,
-            seed_groups_markdown,
-            tank_markdown,
-        )
+        from train.studies.verdict_entrants import entrants_section
 
-        entrants = entrant_comparisons(cfg.entrants, df, cfg.resamples)
-        entrants.to_csv(out / "entrants.csv", index=False, float_format="%.6g")
-        groups = seed_groups(entrants, df)
-        groups.to_csv(out / "entrant_groups.csv", index=False, float_format="%.6g")
-        lines += ["", "## Learned entrants on the test paths", ""]
-        if len(groups):
-            names = sorted(set(map(entrant_group, entrants["controller"])))
-            typical = ", ".join(f"{g}: {representative_seed(entrants, g)}" for g in names)
-            lines += [
-                "Over the seeds of each group (every seed's final model, none selected): "
-                "the IQM over seeds of each seed's entrant / reference ratio of means, its "
-                "range, and in how many seeds the exact paired test (below) resolved the "
-                "entrant better or worse than its reference; `entrant_groups.csv`.", "",
-                seed_groups_markdown(groups), "",
-                f"A typical seed of each group (median geometric-mean ratio on path "
-                f"distance over the conditions; the one a model card ships): {typical}.", "",
-            ]  # fmt: skip
-        lines += [
-            "Each seed against its reference (a residual's base, else PD + gravity or the "
-            "controller it imitated): exact paired sign-flip tests over the (path, seed) "
-            "pairs, Holm over one robot, metric and reference; `entrants.csv`.", "",
-            entrants_markdown(entrants), "", "What each entrant trained on (the test paths "
-            "above are none of its training or evaluation paths):", "",
-            protocol_markdown([n for names in cfg.entrants.values() for n in names]),
-        ]  # fmt: skip
-        tanks = tank_markdown(df)
-        if tanks:
-            lines += [
-                "", "The energy tanks (a tank entrant's residual spends only what its tank "
-                "holds, `../shared/TANK.md`; the gate predicts the work on the nominal model, "
-                "so an overdraw is where the plant differed):", "", tanks,
-            ]  # fmt: skip
+        lines += entrants_section(cfg.entrants, df, cfg.resamples, out)
     (out / "verdict.md").write_text("\n".join(lines) + "\n")
