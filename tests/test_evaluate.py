@@ -514,7 +514,7 @@ def test_a_trained_residual_model_is_evaluated_like_a_controller(tmp_path) -> No
     assert (out / "example_sb3-sac_res-100.png").exists()
     report = (out / "report.md").read_text()  # the protocol of every learned entrant
     assert "## What the learned entrants trained on" in report
-    assert f"| {early} | two_link | sac | 100 | – | the default path | none | ±0 |" in report
+    assert f"| {early} | two_link | sac | 100 | – | the default path | none | ±0 | – |" in report
     assert f"| {final} | two_link | sac | 200 |" in report
     with pytest.raises(InvalidConfigError, match="does not exist"):
         tiny(tmp_path, "x", f"controllers=[computed_torque, sb3:{tmp_path / 'nope'}]")

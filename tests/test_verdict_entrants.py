@@ -78,7 +78,17 @@ def test_the_protocol_table_of_a_run_that_is_not_here_says_so(tmp_path) -> None:
     from train.evaluation.protocol import protocol_markdown, protocol_section
 
     gone = f"sb3:{tmp_path / 'gone'}"
-    assert f"| {gone} | – | – | – | – | (its run folder is not here) | – | – |" in (
+    assert f"| {gone} | – | – | – | – | (its run folder is not here) | – | – | – |" in (
         protocol_markdown([gone])
     )
     assert protocol_section(["passivity", "pd_gravity"]) == []
+
+
+def test_the_protocol_table_names_the_gate_a_run_is_deployed_behind() -> None:
+    from train.evaluation.protocol import protocol_markdown
+
+    row = protocol_markdown(["sb3:models/sac_residual_passivity_twolink_gated"]).splitlines()[-1]
+    assert row.endswith("| a gate of 2 mrad past a 2-mrad deadband |"), row
+    assert "| 60000 |" in row  # a shipped model without checkpoints: its run's steps
+    row = protocol_markdown(["sb3:models/sac_residual_passivity_twolink"]).splitlines()[-1]
+    assert row.endswith("| – |"), row

@@ -55,19 +55,34 @@ def tuning_env_steps(robot: str, controller: str) -> int | None:
     return None if steps is None else int(steps)
 
 
+def _deploy_gate(name: str, config: dict[str, Any]) -> str:
+    """The distance gate a run acts behind (its ``deploy.yml``'s, else its training
+    config's), or "–"."""
+    from train.evaluation.policies import deploy_safeguards, sb3_files
+
+    gate = deploy_safeguards(sb3_files(name)[0]) or config
+    if gate.get("gate_rad") is None:
+        return "–"
+    return (
+        f"a gate of {1e3 * gate['gate_rad']:g} mrad past a "
+        f"{1e3 * (gate.get('gate_deadband_rad') or 0.0):g}-mrad deadband"
+    )
+
+
 def protocol_markdown(entrants: Sequence[str]) -> str:
     """Markdown: what each entrant trained on — robot, algorithm, env steps (beside those the
     tuning fight spent on a tuned base: :func:`tuning_env_steps`), paths, disturbance
-    families, mass randomisation — (issue 39's protocol, in the report that judges it)."""
+    families, mass randomisation — and the distance gate it is deployed behind (issue 39's
+    protocol, in the report that judges it)."""
     lines = [
         "| entrant | robot | algorithm | env steps | tuning of its base (env steps) "
-        "| trained on paths | trained under | randomized masses |",
-        "|---|---|---|---:|---:|---|---|---:|",
+        "| trained on paths | trained under | randomized masses | deployed behind |",
+        "|---|---|---|---:|---:|---|---|---:|---|",
     ]
     for name in entrants:
         run = _run(name)
         if run is None:
-            lines.append(f"| {name} | – | – | – | – | (its run folder is not here) | – | – |")
+            lines.append(f"| {name} | – | – | – | – | (its run folder is not here) | – | – | – |")
             continue
         c, robot = run["config"], (run.get("derived") or {}).get("robot", "–")
         tuned = (
@@ -80,7 +95,7 @@ def protocol_markdown(entrants: Sequence[str]) -> str:
             f"| {'–' if tuned is None else tuned} "
             f"| {c.get('train_paths') or 'the default path'} "
             f"| {c.get('train_families') or c.get('disturbance', 'none')} "
-            f"| ±{float(c.get('randomize_mass', 0.0)):g} |"
+            f"| ±{float(c.get('randomize_mass', 0.0)):g} | {_deploy_gate(name, c)} |"
         )
     return "\n".join(lines)
 
