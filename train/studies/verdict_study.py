@@ -423,7 +423,9 @@ def write_report(cfg: VerdictConfig, out: Path) -> None:
         f"{len(df)} episodes ({wall_h:.1f} core-hours): robots {', '.join(cfg.robots)}; "
         f"{len(cfg.test_paths)} random test paths each (seeds {cfg.test_paths}); "
         f"{len(cfg.conditions())} conditions (presets {', '.join(cfg.disturbances)} at levels "
-        f"{', '.join(f'{lv:g}' for lv in cfg.levels)}); {cfg.seeds} seeds per path; "
+        f"{', '.join(f'{lv:g}' for lv in cfg.levels)}"
+        + "".join(f", {d} at {', '.join(f'{v:g}' for v in lv)}" for d, lv in cfg.levels_of.items())
+        + f"); {cfg.seeds} seeds per path; "
         f"{cfg.control_hz:g} Hz; {cfg.gains} gains.",
         "",
         f"**{FOCUS} against the strongest rival** in each condition (the lowest mean that is "
