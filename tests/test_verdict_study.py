@@ -356,7 +356,9 @@ def test_an_entrant_is_judged_on_the_test_paths_against_its_base(tmp_path, resid
     assert len(groups) == len(entrants) and (groups["seeds"] == 1).all()
     assert np.allclose(groups["iqm_ratio"], entrants["ratio"], rtol=1e-5)
     assert f"the one a model card ships): run: {name}." in text
-    assert f"| {name} | two_link | sac | 100 | the default path | periodic:1.0 | ±0 | – |" in text
+    assert (
+        f"| {name} | two_link | sac | 100 | – | the default path | periodic:1.0 | ±0 | – |" in text
+    )
 
 
 @pytest.fixture(scope="module")

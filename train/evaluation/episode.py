@@ -171,13 +171,15 @@ def _cached(
     cache: OrderedDict[tuple[Any, ...], Any],
     key: tuple[Any, ...],
     build: Any,
-    size: int = CACHE_SIZE,
+    size: int | None = None,
 ) -> Any:
+    """``cache[key]``, built by ``build()`` if missing; the least recently used beyond
+    ``size`` (default :data:`CACHE_SIZE`, read at the call) dropped, an env closed."""
     if key in cache:
         cache.move_to_end(key)
         return cache[key]
     value = cache[key] = build()
-    while len(cache) > size:
+    while len(cache) > (CACHE_SIZE if size is None else size):
         _, old = cache.popitem(last=False)
         if isinstance(old, gym.Env):
             old.close()

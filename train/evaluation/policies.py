@@ -175,8 +175,14 @@ class SB3Policy:
         self.obs_stats = obs_stats
         self.recurrent = type(model).__name__ in RECURRENT_ALGOS.values()
         self._state: Any = None
-        # SB3's torch policies (not sbx's JAX ones, not a recurrent one): :meth:`_predict`
-        self._fast = not self.recurrent and isinstance(getattr(model, "policy", None), BasePolicy)
+        # SB3's own torch policies (not sbx's JAX ones, which subclass them; not a
+        # recurrent one): :meth:`_predict`
+        policy = getattr(model, "policy", None)
+        self._fast = (
+            not self.recurrent
+            and isinstance(policy, BasePolicy)
+            and type(policy).__module__.startswith("stable_baselines3.")
+        )
 
     def reset(self) -> None:
         """Forget a recurrent model's hidden state: the next call starts an episode."""
