@@ -160,6 +160,7 @@ def _disturbance_text(disturbance: str, level: float) -> str | None:
 _ENV_CACHE: OrderedDict[tuple[Any, ...], gym.Env[Any, Any]] = OrderedDict()
 _SB3_ENV_CACHE: OrderedDict[tuple[Any, ...], gym.Env[Any, Any]] = OrderedDict()
 _POLICY_CACHE: OrderedDict[tuple[Any, ...], Predictor] = OrderedDict()
+_RUN_CACHE: OrderedDict[tuple[Any, ...], tuple[Any, ...]] = OrderedDict()
 #: Most envs a worker keeps (an iiwa env holds ~30 MB, mostly its PyBullet client).
 CACHE_SIZE = 16
 #: Most policies a worker keeps (~1 MB each): more than a study's entrants of one robot,
@@ -217,6 +218,25 @@ def _env(settings: EpisodeSettings, disturbance: str, level: float) -> gym.Env[A
     )
 
 
+def _run_files(controller: str) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any] | None]:
+    """A run's ``config`` and ``derived`` and its residual wrapper's arguments (None for a
+    pure policy), read once per worker (``_RUN_CACHE``), not once per episode."""
+    from train.evaluation.policies import deploy_safeguards, run_config, sb3_files
+
+    run_dir = sb3_files(controller)[0]
+    cfg = run_config(run_dir)
+    c = cfg["config"]
+    wrapper = (
+        {  # the gate acts on the torque; the penalty only on the reward
+            **trained_wrapper_kwargs(cfg),  # the base's rates as it trained over
+            **deploy_safeguards(run_dir),  # deploy.yml's gate wins
+        }
+        if c["residual"] != "none"
+        else None
+    )
+    return c, cfg["derived"], wrapper
+
+
 def _sb3_env_and_policy(
     controller: str, settings: EpisodeSettings, disturbance: str, level: float
 ) -> tuple[gym.Env[Any, Any], Predictor]:
@@ -227,18 +247,10 @@ def _sb3_env_and_policy(
     arguments and the condition — so the seeds of one campaign group share their envs
     (a residual env's base tables cost ~1 s a path). An env's episode starts from
     ``reset(seed)`` alone, so which run used it before changes nothing."""
-    from train.evaluation.policies import deploy_safeguards, load_sb3_policy, run_config, sb3_files
+    from train.evaluation.policies import load_sb3_policy
 
-    cfg = run_config(sb3_files(controller)[0])
-    c, derived = cfg["config"], cfg["derived"]
-    wrapper = (
-        {  # the gate acts on the torque; the penalty only on the reward
-            **trained_wrapper_kwargs(cfg),  # the base's rates as it trained over
-            **deploy_safeguards(sb3_files(controller)[0]),  # deploy.yml's gate wins
-        }
-        if c["residual"] != "none"
-        else None
-    )
+    c, derived, wrapper = _cached(_RUN_CACHE, (controller,), lambda: _run_files(controller),
+                                  POLICY_CACHE_SIZE)  # fmt: skip
     build_args = (
         c["env_id"],  # the run's own observation (plain, or the preview id's)
         c["residual"],

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 import yaml
 from gymnasium import spaces
 from stable_baselines3 import PPO, SAC, TD3
@@ -191,11 +192,9 @@ class SB3Policy:
     def _predict(self, x: np.ndarray) -> np.ndarray:
         """SB3's ``BasePolicy.predict`` (deterministic, no hidden state) step for step, the
         same torch operations on the same tensors — bit for bit its action — without its
-        per-call ``set_training_mode(False)``, a walk over every module that cost as much
-        as the network itself (~0.2 ms a call, half of an evaluation episode's time): the
-        policy is put in eval mode once, and again only if something switched it back."""
-        import torch
-
+        per-call ``set_training_mode(False)``, a walk over every module (a call of a
+        [64, 64] SAC actor 430 → 300 µs, measured beside two training runs): the policy is
+        put in eval mode once, and again only if something switched it back."""
         policy = self.model.policy
         if policy.training:
             policy.set_training_mode(False)
