@@ -299,11 +299,17 @@ def cap_for_rate(
     """``gains`` such that the control period ``dt_s`` is at most 80% (:data:`RATE_MARGIN`)
     of each limit of :meth:`PassivityController.max_period_s`:
 
-    * K and D scaled by one factor where needed so that the fastest mode of φ's springs on
-      the path (:func:`~agents.gains.max_mode_frequency`) turns at most 0.8 θ(0.8 c) rad per
-      period, θ the spring limit (:func:`~agents.passivity_sampling.spring_angle_limit`) and
-      c = min_j D_j/(K_j dt) — what it would be at the period dt/0.8 (scaling K and D
-      together keeps c); the per-joint cap reads M's diagonal at home only;
+    * K, D and the pump k scaled by one factor where needed so that the fastest mode of
+      φ's springs on the path (:func:`~agents.gains.max_mode_frequency`) turns at most
+      0.8 θ(0.8 c) rad per period, θ the spring limit
+      (:func:`~agents.passivity_sampling.spring_angle_limit`) and c = min_j D_j/(K_j dt) —
+      what it would be at the period dt/0.8 (scaling K and D together keeps c); the
+      per-joint cap reads M's diagonal at home only. The pump goes with them: its arm half
+      f = −k (H + W_r) M q̇ is a velocity feedback whose sign follows H + W_r, and off the
+      path (H + W_r < 0) it pushes the arm along its own velocity, against the springs and
+      dampers that pull it back; softening those alone undoes the balance the gains were
+      chosen with (docs/control_rates.md, loop 6: the tuned two-link at 250 Hz, K and D
+      × 0.28, was thrown 0.5–1.2 rad off the path by 2 of 200 impulses, 0 with k × 0.28);
     * R lowered where needed so that (R + q_r'ᵀD q_r')/M_r(s) dt ≤ 0.8 · 2 on the path's
       slowest stretch (the extremes of M_r(s), not its mean M̄_r that R = ρ M̄_r scales by);
     * the pump k lowered where needed so that k dt ≤ 0.8 (:data:`PUMP_LIMIT`: the virtual
@@ -320,6 +326,7 @@ def cap_for_rate(
             gains,
             K=tuple(float(k) for k in scale * stiffness),
             D=tuple(float(d) for d in scale * gains.damping(n)),
+            k_pump=float(scale * gains.k_pump),
         )
     cols = tables.columns
     qd, m_r = cols[:, n : 2 * n], cols[:, 3 * n]
