@@ -133,3 +133,62 @@ class EnergyTank:
         fill = self.beta * max(float(dissipation_w), 0.0) * dt_s
         self.level_j = min(self.cap_j, self.level_j + fill - float(work_j))
         self.overdrawn_j = max(self.overdrawn_j, -self.level_j)
+
+
+#: The storage flows a :class:`BalanceLedger` reads off a passivity base's diagnostics.
+BALANCE_KEYS = ("energy", "pump_power", "sync_power")
+
+
+@dataclass
+class BalanceLedger:
+    """The tank's balance along one episode (module docstring; ``../shared/TANK.md``):
+
+    .. math::
+
+        x_k = (E_k + T_k) - (E_0 + T_0) - \\sum_{j<k} (P_{pump,j} + P_{sync,j}) \\Delta t - W_d(t_k)
+
+    (J), E_k the law's storage at the state it acted on at step k (its model, its measured
+    state), T_k the tank's level then (0 without a tank), W_d the disturbance's work since
+    reset (the env's ledger). On the exact closed loop x_k ≤ the discrete residue with a
+    tank, whatever the residual does; a residual without one, or a plant or sensor other
+    than the law's, can make it grow. :attr:`excess_max_j` is the episode's largest x_k.
+    """
+
+    excess_j: float = field(init=False, default=math.nan)
+    """x_k at the last step recorded (J; NaN before the first)."""
+    excess_max_j: float = field(init=False, default=math.nan)
+    """max_k x_k over the episode (J; NaN before the first step, +inf once E is not finite)."""
+
+    def __post_init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """A new episode: nothing recorded."""
+        self._start: float | None = None
+        self._flows_j = 0.0
+        self._work_d_j = 0.0
+        self.excess_j = math.nan
+        self.excess_max_j = math.nan
+
+    def record(
+        self, diagnostics: dict[str, float], tank_level_j: float, work_d_after_j: float,
+        dt_s: float,
+    ) -> float:  # fmt: skip
+        """x_k of the step just taken: ``diagnostics`` the law's at that step (E_k,
+        P_pump, P_sync), ``tank_level_j`` T_k (before the step's settling),
+        ``work_d_after_j`` W_d at the step's end (J; the next x's)."""
+        stored = float(diagnostics["energy"]) + float(tank_level_j)
+        if self._start is None:
+            self._start = stored
+        excess = stored - self._start - self._flows_j - self._work_d_j
+        if not math.isfinite(excess):
+            excess = math.inf
+        self._flows_j += (
+            float(diagnostics["pump_power"]) + float(diagnostics["sync_power"])
+        ) * dt_s
+        self._work_d_j = float(work_d_after_j)
+        self.excess_j = excess
+        self.excess_max_j = (
+            excess if math.isnan(self.excess_max_j) else max(self.excess_max_j, excess)
+        )
+        return excess

@@ -66,7 +66,10 @@ Safeguards (both off by default, so a = 0 stays bit-identical to the base):
 Info (every step): ``tau_base_nm`` τ_base, ``tau_residual_nm`` γ scale ⊙ a_eff or
 M(q) γ α a_eff (a_eff = clip(a, −1, 1) without a prior; N·m, before the env's own
 clipping of the sum to τ_max), ``controller`` the controller's ``diagnostics()``; reset's
-info has ``controller`` too.
+info has ``controller`` too. Over a passivity base (tank or not) also ``balance_excess_j``:
+storage + tank against its start, the pump's, re-synchronisation's and disturbance's work
+(:class:`agents.energy_tank.BalanceLedger`; :attr:`ResidualWrapper.balance` keeps the
+episode's largest).
 
 A base may also be a *network*: ``base="network"`` with ``base_model`` the folder of a saved
 pure SAC policy (:data:`~agents.residual_spec.NETWORK_BASE`,
@@ -90,6 +93,7 @@ from gymnasium import spaces
 from gymnasium.envs.registration import EnvSpec
 
 from agents.base import Controller, FloatArray, ObservesAppliedTorque
+from agents.energy_tank import BALANCE_KEYS, BalanceLedger
 from agents.policy import torque_to_action
 from agents.registry import make_controller
 from agents.residual_features import PRIOR_ERROR_FEATURES, ControllerFeatures, prior_error_names
@@ -228,6 +232,10 @@ class ResidualWrapper(
             self._prior_by = self._features_by  # a pool's: the same names on every path
         self.tank = spec.energy_tank() if spec.tank else None
         """The energy tank (None without ``tank``)."""
+        self.balance = BalanceLedger()
+        """Storage + tank along the episode (:class:`agents.energy_tank.BalanceLedger`), kept
+        for a base whose diagnostics give its storage and flows (the passivity laws); NaN
+        for others."""
 
     def _scale_nm(self, spec: ResidualSpec) -> FloatArray:
         """The torque authority (N·m, (n,)): ``spec.scale_nm`` broadcast to the n joints,
@@ -300,6 +308,7 @@ class ResidualWrapper(
         if self.tank is not None:
             self.tank.reset()
             info["tank_level_j"] = self.tank.level_j
+        self.balance.reset()
         self._last_obs = self._augment(obs)
         return self._last_obs, info
 
@@ -347,6 +356,12 @@ class ResidualWrapper(
             self.controller.applied_torque(tau_base + tau_res, u.dt)
         inner_action = torque_to_action(tau_base + tau_res, self.torque_limits_nm)
         obs, reward, terminated, truncated, info = self.env.step(inner_action)
+        diagnostics = self.controller.diagnostics()
+        if all(key in diagnostics for key in BALANCE_KEYS):
+            level = self.tank.level_j if self.tank is not None else 0.0  # T_k, before settling
+            info["balance_excess_j"] = self.balance.record(
+                diagnostics, level, float(info.get("disturbance_work_j", 0.0)), u.dt
+            )
         if self.tank is not None:
             q_next, _ = u.measured_joint_state()
             # the torque applied beyond the base's, the limits' clipping included (the
@@ -355,7 +370,7 @@ class ResidualWrapper(
             applied = np.minimum(np.maximum(tau_base + tau_res, -limits), limits)
             work = float((q_next - q) @ (applied - tau_base))
             if math.isfinite(work):
-                dissipation = float(self.controller.diagnostics().get("dissipation", 0.0))
+                dissipation = float(diagnostics.get("dissipation", 0.0))
                 self.tank.settle(work, dissipation, u.dt)
             info["tank_level_j"] = self.tank.level_j
             info["tank_scale"] = tank_scale
@@ -371,7 +386,7 @@ class ResidualWrapper(
         self._base_ratio = tau_base / self.torque_limits_nm
         info["tau_base_nm"] = tau_base
         info["tau_residual_nm"] = tau_res
-        info["controller"] = self.controller.diagnostics()
+        info["controller"] = diagnostics
         augmented = self._augment(obs)
         if not np.all(np.isfinite(augmented)):  # the base's own state diverged: as above
             info.update(unstable=True, controller_diverged=True)

@@ -69,7 +69,7 @@ def episode(policy: Policy, tank: bool, disturbance=None, seed: int = 0, steps: 
     w.reset(seed=seed)
     rng = np.random.default_rng(seed)
     u = w.tracking_env
-    energy, levels, qs, flows, saturated = [], [], [], 0.0, False
+    energy, levels, works, qs, flows, saturated = [], [], [], [], 0.0, False
     info: dict = {}
     try:
         for _ in range(steps):
@@ -78,6 +78,7 @@ def episode(policy: Policy, tank: bool, disturbance=None, seed: int = 0, steps: 
             d = info["controller"]
             energy.append(d["energy"])  # E at the step's start: the flows of the steps before
             levels.append(info.get("tank_level_j", 0.0))
+            works.append(info["disturbance_work_j"])  # W_d at the step's end
             qs.append(u.joint_state()[0])
             flows += (d["pump_power"] + d["sync_power"]) * u.dt
             saturated |= bool(np.any(np.abs(info["tau_base_nm"]) > u.torque_limits_nm))
@@ -85,10 +86,10 @@ def episode(policy: Policy, tank: bool, disturbance=None, seed: int = 0, steps: 
         last = (d["pump_power"] + d["sync_power"]) * u.dt
         t0 = w.residual_spec.tank_initial_j if tank else 0.0
         excess = (energy[-1] + levels[-2]) - (energy[0] + t0) - (flows - last)
-        excess -= info["disturbance_work_j"]
+        excess -= works[-2]  # W_d up to the last step's start, where E and T are read
         return {
             "excess": excess, "min_level": min(levels), "q": np.array(qs),
-            "saturated": saturated, "info": info, "tank": w.tank,
+            "saturated": saturated, "info": info, "tank": w.tank, "ledger": w.balance,
         }  # fmt: skip
     finally:
         w.close()
@@ -107,12 +108,18 @@ def test_storage_plus_tank_grows_only_by_pump_sync_and_disturbance_work(policy, 
     assert not run["saturated"]  # premise: the law's torque itself within the limits
     assert run["excess"] <= RESIDUE_J
     assert run["min_level"] >= 0.0 and run["tank"].overdrawn_j == 0.0
+    # the wrapper's own ledger: the same balance at the last step, never above the residue
+    assert run["ledger"].excess_j == pytest.approx(run["excess"], abs=1e-9)
+    assert run["ledger"].excess_max_j <= RESIDUE_J
 
 
 @pytest.mark.parametrize("policy", [inject, toward_motion])
 def test_without_the_tank_the_same_residual_breaks_the_balance(policy):
-    assert episode(policy, tank=False)["excess"] > 5.0  # joules from nowhere
-    assert episode(policy, tank=True)["excess"] <= RESIDUE_J
+    plain = episode(policy, tank=False)
+    assert plain["excess"] > 5.0  # joules from nowhere
+    assert plain["ledger"].excess_j == pytest.approx(plain["excess"], abs=1e-9)
+    assert plain["ledger"].excess_max_j >= plain["excess"]  # the episode's largest
+    assert episode(policy, tank=True)["ledger"].excess_max_j <= RESIDUE_J
 
 
 def test_an_empty_tank_holds_an_injecting_residual_back_entirely():

@@ -39,8 +39,9 @@ from train.evaluation.episode import KEY_COLUMNS, label
 from train.evaluation.verdict import report_metrics, words
 
 COLUMNS: tuple[str, ...] = (*KEY_COLUMNS, *METRIC_NAMES, "steps", "wall_s")
-#: Metric columns added after results were first written (``tau_fb_rms_frac``: issue 37).
-LATER_COLUMNS: tuple[str, ...] = ("tau_fb_rms_frac",)
+#: Columns added after results were first written (``tau_fb_rms_frac``: issue 37; a
+#: verdict's ``balance_excess_j``: issue 39).
+LATER_COLUMNS: tuple[str, ...] = ("tau_fb_rms_frac", "balance_excess_j")
 
 
 class CorruptResultsError(PtrackError, ValueError):

@@ -159,25 +159,59 @@ def entrant_comparisons(
     return out[["robot", "reference", *[c for c in out.columns if c not in ("robot", "reference")]]]
 
 
-#: What a verdict with entrants records of each entrant's energy tank per episode (NaN for
-#: an episode without one): the most the tank went below zero over the episode, J — the
-#: gate predicts the residual's work on the nominal model, the plant may differ — and the
-#: energy the gate held back, J (``agents.energy_tank.EnergyTank``).
-TANK_COLUMNS = ("tank_overdrawn_j", "tank_withheld_j")
+#: What a verdict with entrants records of each entrant's energy per episode (NaN where it
+#: does not apply): its tank's deepest level below zero, J — the gate predicts the
+#: residual's work on the nominal model, the plant may differ — and the energy the gate
+#: held back, J (``agents.energy_tank.EnergyTank``; a tank entrant only); and, for a
+#: residual over a passivity law (tank or not), the balance's largest excess over the
+#: episode, J: storage + tank against their start, the pump's, re-synchronisation's and
+#: disturbance's work (``agents.energy_tank.BalanceLedger``; added 2026-11-28, NaN in
+#: files written before).
+TANK_COLUMNS = ("tank_overdrawn_j", "tank_withheld_j", "balance_excess_j")
 
 
 def tank_record(env: Any) -> dict[str, float]:
-    """:data:`TANK_COLUMNS` of the episode ``env`` just ran (its residual wrapper's tank,
-    found through the wrappers; NaN without a tank)."""
+    """:data:`TANK_COLUMNS` of the episode ``env`` just ran (its residual wrapper's tank
+    and balance ledger, found through the wrappers; NaN where there is none)."""
     from agents.residual_wrapper import ResidualWrapper
 
     layer = env
     while layer is not None and not isinstance(layer, ResidualWrapper):
         layer = getattr(layer, "env", None)
-    tank = getattr(layer, "tank", None)
-    if tank is None:
-        return dict.fromkeys(TANK_COLUMNS, math.nan)
-    return {"tank_overdrawn_j": float(tank.overdrawn_j), "tank_withheld_j": float(tank.withheld_j)}
+    out = dict.fromkeys(TANK_COLUMNS, math.nan)
+    if layer is None:
+        return out
+    out["balance_excess_j"] = float(layer.balance.excess_max_j)
+    tank = layer.tank
+    if tank is not None:
+        out["tank_overdrawn_j"] = float(tank.overdrawn_j)
+        out["tank_withheld_j"] = float(tank.withheld_j)
+    return out
+
+
+def balance_markdown(df: pd.DataFrame) -> str:
+    """Markdown: per robot, group of seeds (:func:`entrant_group`) and condition of the
+    residuals over a passivity law, the balance's largest excess per episode
+    (:data:`TANK_COLUMNS`): its median and maximum over the episodes (J)."""
+    if "balance_excess_j" not in df.columns:
+        return ""
+    kept = df[df["balance_excess_j"].notna()]
+    if kept.empty:
+        return ""
+    kept = kept.assign(group=kept["controller"].map(entrant_group))
+    lines = [
+        "| robot | group | condition | episodes | median excess (J) | largest excess (J) |",
+        "|---|---|---|---:|---:|---:|",
+    ]
+    for (robot, group, dist, level), g in kept.groupby(
+        ["robot", "group", "disturbance", "level"], sort=True
+    ):
+        x = g["balance_excess_j"]
+        lines.append(
+            f"| {robot} | {group} | {condition_name(dist, level)} | {len(g)} | {x.median():.3g} "
+            f"| {x.max():.3g} |"
+        )
+    return "\n".join(lines)
 
 
 def tank_markdown(df: pd.DataFrame) -> str:
@@ -316,6 +350,15 @@ def entrants_section(
         "above are none of its training or evaluation paths):", "",
         protocol_markdown([n for names in entrants.values() for n in names]),
     ]  # fmt: skip
+    balance = balance_markdown(df)
+    if balance:
+        lines += [
+            "", "The storage balance of the residuals over a passivity law (the largest "
+            "excess of storage + tank over their start, the pump's, re-synchronisation's "
+            "and disturbance's work in each episode; ≤ the discrete residue on the exact "
+            "closed loop with a tank, `../shared/TANK.md`; the law's own storage, on its "
+            "model and its measured state):", "", balance,
+        ]  # fmt: skip
     tanks = tank_markdown(df)
     if tanks:
         lines += [

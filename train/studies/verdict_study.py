@@ -302,7 +302,7 @@ def load_frame(path: Path, names: Sequence[str] | None = None) -> pd.DataFrame:
         if path.exists():
             with path.open() as f:
                 header = f.readline().strip().split(",")
-        names = ENTRANT_COLUMNS if set(TANK_COLUMNS) <= set(header) else COLUMNS
+        names = ENTRANT_COLUMNS if TANK_COLUMNS[0] in header else COLUMNS  # later ones NaN
     rows = read_episodes(path, names, KEY_COLUMNS, fill_missing=True)
     df = pd.DataFrame(rows, columns=list(names))
     for col in (*METRIC_NAMES, *[c for c in TANK_COLUMNS if c in names], "wall_s", "level"):
