@@ -43,8 +43,11 @@ def _loader(path: Path):
             runs = [n.removeprefix("sb3:") for ns in cfg.entrants.values() for n in ns]
             if any(not (ROOT / r).is_dir() for r in runs if r.startswith("runs/")):
                 pytest.skip(f"{name} judges local training runs (runs/, made by its campaign)")
-            if cfg.gains == "tuned":  # tuned gains exist only where a fight ran:
-                cfg.gains = "default"  # test_the_verdict_has_tuned_gains_on_every_robot
+            # tuned gains exist only where a fight ran (test_the_verdict_has_tuned_gains_on_
+            # every_robot); entrants are refused beside controllers at other gains than their
+            # base's, so a config with local runs keeps its own
+            if cfg.gains == "tuned" and not runs:
+                cfg.gains = "default"
             cfg.validate()
 
         return check
