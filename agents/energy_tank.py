@@ -151,7 +151,8 @@ class BalanceLedger:
     state), T_k the tank's level then (0 without a tank), W_d the disturbance's work since
     reset (the env's ledger). On the exact closed loop x_k ≤ the discrete residue with a
     tank, whatever the residual does; a residual without one, or a plant or sensor other
-    than the law's, can make it grow. :attr:`excess_max_j` is the episode's largest x_k.
+    than the law's, can make it grow. :attr:`excess_max_j` is the episode's largest x_k
+    (≥ 0: x_0 = 0 is among them; +inf once the law's storage or state is not finite).
     """
 
     excess_j: float = field(init=False, default=math.nan)
@@ -169,6 +170,12 @@ class BalanceLedger:
         self._work_d_j = 0.0
         self.excess_j = math.nan
         self.excess_max_j = math.nan
+
+    def diverged(self) -> None:
+        """The law's state ran to a non-finite value this step: x = +inf (nothing, for a
+        ledger that never recorded: a base without a storage)."""
+        if self._start is not None:
+            self.excess_j = self.excess_max_j = math.inf
 
     def record(
         self, diagnostics: dict[str, float], tank_level_j: float, work_d_after_j: float,

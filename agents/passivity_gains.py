@@ -10,10 +10,10 @@ period dt:
 * D_j = c K_j dt (+ 2 ζ √(K_j M_jj(q_home)) with ζ > 0)      damper beside φ (N·m·s/rad)
 * κ = ω_s² M̄_r,  R = ρ M̄_r,  k_pump = λ / M̄_r ("metric" pump)
 
-then capped for the rate from the path's extremes (:func:`cap_for_rate`): K and D scaled
-together where the fastest coupled mode of M(q)⁻¹K on the path would turn more than 0.8 rad
-per sample, R lowered where (R + q_r'ᵀDq_r')/M_r(s) dt would exceed 1.6 on the slowest
-stretch, k_pump lowered where k_pump dt would exceed 0.8. The rates are
+then capped for the rate from the path's extremes (:func:`cap_for_rate`): K, D and
+k_pump scaled together where the fastest coupled mode of M(q)⁻¹K on the path would turn
+more than 0.8 rad per sample, R lowered where (R + q_r'ᵀDq_r')/M_r(s) dt would exceed 1.6
+on the slowest stretch, k_pump lowered where k_pump dt would exceed 0.8. The rates are
 :data:`DEFAULT_RATES` updated by the robot profile's
 ``controller_gains["passivity"]`` (ω, ω_s in rad/s; ρ, λ in 1/s; m_floor in kg·m²; c; ζ
 ``damping_ratio``, dimensionless; γ in 1/s and r̄ for the re-synchronisation);
@@ -258,10 +258,13 @@ def gains_from_rates(
         inertia, tables.mean_m_r, dt_s=ctx.dt_s,
         torque_limits_nm=ctx.profile.torque_limits_nm if aware else None, **r,
     )  # fmt: skip
-    gains = cap_for_rate(gains, ctx.model, tables, ctx.dt_s)
-    if zeta != 0.0:  # a negative or NaN ζ is refused there
-        gains = cap_for_rate(add_joint_damping(gains, inertia, zeta), ctx.model, tables, ctx.dt_s)
-    return gains
+    if zeta == 0.0:
+        return cap_for_rate(gains, ctx.model, tables, ctx.dt_s)
+    # twice: the joint damper is sized on the capped springs, and changes their cap; the
+    # pump's own limit only at the end, so it sees the two spring factors' product
+    gains = cap_for_rate(gains, ctx.model, tables, ctx.dt_s, limit_pump=False)
+    damped = add_joint_damping(gains, inertia, zeta)  # a negative or NaN ζ is refused there
+    return cap_for_rate(damped, ctx.model, tables, ctx.dt_s)
 
 
 def add_joint_damping(
@@ -294,7 +297,11 @@ def add_joint_damping(
 
 
 def cap_for_rate(
-    gains: PassivityGains, model: RobotModel, tables: PassivityTables, dt_s: float
+    gains: PassivityGains,
+    model: RobotModel,
+    tables: PassivityTables,
+    dt_s: float,
+    limit_pump: bool = True,
 ) -> PassivityGains:
     """``gains`` such that the control period ``dt_s`` is at most 80% (:data:`RATE_MARGIN`)
     of each limit of :meth:`PassivityController.max_period_s`:
@@ -313,7 +320,8 @@ def cap_for_rate(
     * R lowered where needed so that (R + q_r'ᵀD q_r')/M_r(s) dt ≤ 0.8 · 2 on the path's
       slowest stretch (the extremes of M_r(s), not its mean M̄_r that R = ρ M̄_r scales by);
     * the pump k lowered where needed so that k dt ≤ 0.8 (:data:`PUMP_LIMIT`: the virtual
-      system's pump term is stepped explicitly).
+      system's pump term is stepped explicitly) — unless ``limit_pump`` is false (a pass
+      whose result is capped again: the limit is taken once, at the end).
     """
     n = model.n
     stiffness = gains.stiffness(n)
@@ -335,7 +343,7 @@ def cap_for_rate(
     if gains.R > r_max > 0.0:
         gains = dataclasses.replace(gains, R=r_max)
     k_max = RATE_MARGIN * PUMP_LIMIT / dt_s
-    if gains.k_pump > k_max:
+    if limit_pump and gains.k_pump > k_max:
         gains = dataclasses.replace(gains, k_pump=k_max)
     return gains
 

@@ -332,6 +332,7 @@ class ResidualWrapper(
         q, qd = u.measured_joint_state()
         tau_base = self.controller.step(q, qd, u.dt)  # (n,) N·m
         if not np.all(np.isfinite(tau_base)):  # the base diverged: the episode ends as unstable
+            self.balance.diverged()
             info = {"unstable": True, "controller_diverged": True, "t_s": u.t}
             penalty = -float(u.config.unstable_penalty)
             return self._last_obs, penalty, True, False, info
@@ -389,6 +390,7 @@ class ResidualWrapper(
         info["controller"] = diagnostics
         augmented = self._augment(obs)
         if not np.all(np.isfinite(augmented)):  # the base's own state diverged: as above
+            self.balance.diverged()
             info.update(unstable=True, controller_diverged=True)
             return self._last_obs, -float(u.config.unstable_penalty), True, False, info
         self._last_obs = augmented

@@ -15,7 +15,7 @@ from sampled_loop import frozen_loop_eigenvalues, storage_run
 from scipy.linalg import eigh
 
 import ptrack_gym  # noqa: F401  (registers the envs)
-from agents import passivity
+from agents import passivity, passivity_gains
 from agents import passivity_sampling as sampling
 from agents.base import ControlContext
 from agents.gains import gain_vector, max_mode_frequency
@@ -104,7 +104,7 @@ def test_the_virtual_pump_limit_and_its_implicit_step_at_100_hz(monkeypatch) -> 
     raw = dataclasses.replace(capped, k_pump=k)
     dt = ctx.dt_s
     assert k * dt > 2.0 and sampling.pump_growth(k, dt) > 1.0
-    # built: k dt ≤ 0.8 (here 0.50: the springs' cap at 100 Hz lowers the pump with them)
+    # built: k dt ≤ 0.8 (the springs' cap at 100 Hz lowers the pump with them, then its own)
     assert capped.k_pump * dt <= 0.8 + 1e-12 and sampling.pump_growth(capped.k_pump, dt) < 1
     with pytest.raises(ControlRateError, match=r"virtual pump .* \(the gain rate 'lam'\)"):
         PassivityController(ctx.model, tables, raw, dt_s=dt)
@@ -481,16 +481,18 @@ def _impulse_run(path_seed: int, seed: int, gains: PassivityGains | str) -> floa
 
 
 #: (random path, reset seed) where an impulse at level 1 threw the tuned two-link at 250 Hz
-#: 0.11-1.2 rad off its path while the pump kept its 1-kHz strength (200 impulse episodes on
-#: test paths 1-10: 5 past 0.1 rad, 2 past 0.5; docs/control_rates.md, loop 6).
+#: 0.11-1.2 rad off its path while the pump kept its 1-kHz strength (reset seeds 1-10 on
+#: test paths 1-10: 5 of 100 past 0.1 rad, 2 past 0.5; docs/control_rates.md, loop 6).
 THROWN = ((1, 1), (7, 5), (1, 5), (5, 3))
 
 
-def test_the_pump_is_softened_with_the_springs_so_an_impulse_cannot_throw_the_arm_off() -> None:
+def test_the_pump_is_softened_with_the_springs_so_an_impulse_cannot_throw_the_arm_off(
+    monkeypatch,
+) -> None:
     """Where the rate caps K and D, the pump k goes down by the same factor (the gains'
-    balance off the path); with the pump left at its 1-kHz strength the cases of
-    :data:`THROWN` leave the path by > 0.5 rad, with it softened none passes 0.1 rad — nor
-    do impulses on ten other (path, seed) pairs."""
+    balance off the path); with the pump left at its 1-kHz strength every case of
+    :data:`THROWN` leaves the path by more than 0.1 rad (two by more than 0.5), with it
+    softened none passes 0.1 rad — nor do impulses on ten other (path, seed) pairs."""
     for robot in ("two_link", "iiwa"):
         env, ctx, tables = _context(robot, 250.0, TEST_PATHS[0])
         gains = make_controller("passivity", env, "tuned").gains
@@ -504,6 +506,26 @@ def test_the_pump_is_softened_with_the_springs_so_an_impulse_cannot_throw_the_ar
         assert np.allclose(np.array(capped.K) / stiff.K, scale, rtol=1e-12)
         assert np.allclose(np.array(capped.D) / stiff.D, scale, rtol=1e-12)
         assert capped.k_pump == pytest.approx(min(scale * stiff.k_pump, 0.8 / ctx.dt_s), rel=1e-12)
+    # as built (two passes, the joint damper sized between them): k is the springs' total
+    # factor times the uncapped k, then its own limit (taken once: on path 8101 at 100 Hz the
+    # first pass alone is past it, the product is not)
+    passes = []
+    real = passivity_gains.cap_for_rate
+
+    def spy(gains, *args, **kwargs):
+        out = real(gains, *args, **kwargs)
+        passes.append((gains, out))
+        return out
+
+    monkeypatch.setattr(passivity_gains, "cap_for_rate", spy)
+    env, ctx, tables = _context("two_link", 100.0, TEST_PATHS[0])
+    built = make_controller("passivity", env, "tuned").gains
+    env.close()
+    total = np.prod([out.K[0] / g.K[0] for g, out in passes])
+    assert len(passes) == 2 and total < 1.0
+    assert built.k_pump == pytest.approx(min(total * passes[0][0].k_pump, 0.8 / ctx.dt_s))
+    assert passes[0][1].k_pump * ctx.dt_s > 0.8  # the first pass alone was past the limit
+    monkeypatch.undo()
     thrown = []
     for path_seed, seed in THROWN:
         env = gym.make("ptrack_gym/TwoLinkTrack-v0", control_hz=250.0, path="random",
@@ -517,7 +539,7 @@ def test_the_pump_is_softened_with_the_springs_so_an_impulse_cannot_throw_the_ar
         earlier = dataclasses.replace(gains, k_pump=min(k_fast, 0.8 / 0.004))  # as before
         thrown.append(_impulse_run(path_seed, seed, earlier))
         assert _impulse_run(path_seed, seed, "tuned") < 0.1, (path_seed, seed)
-    assert max(thrown) > 0.5, thrown
+    assert min(thrown) > 0.1 and sorted(thrown)[-2] > 0.5, thrown
     for path_seed in (2, 3, 4, 6, 8):
         for seed in (2, 7):
             assert _impulse_run(path_seed, seed, "tuned") < 0.1, (path_seed, seed)

@@ -123,5 +123,6 @@ def test_a_residual_env_whose_base_state_diverges_ends_as_unstable():
         assert info["unstable"] and info["controller_diverged"]
         assert reward == -env.unwrapped.config.unstable_penalty
         assert np.array_equal(obs, last) and wrapped.observation_space.contains(obs)
+        assert wrapped.balance.excess_max_j == np.inf  # storage + tank unbounded
     finally:
         wrapped.close()
