@@ -70,6 +70,11 @@ class ControllerEntry:
             feature block holds the reference error q_r(s) − q per joint
             (``agents.residual_features.PRIOR_ERROR_FEATURES``).
         tunable: whether the tuner searches its rates (:data:`TUNABLE`).
+        gain_rules: the revision of how its builder makes gains of the same rates; raised
+            when a change moves its gains at some control rate (a study's record of the
+            rates it ran then differs: ``train.evaluation.rate_record``). 1 for all but the
+            passivity laws, 2 since their rate cap lowers the pump with the springs
+            (docs/control_rates.md, loop 6).
     """
 
     name: str
@@ -77,6 +82,7 @@ class ControllerEntry:
     rates: RateSource
     prior_base: bool = True
     tunable: bool = True
+    gain_rules: int = 1
 
 
 def _table(*entries: ControllerEntry) -> Mapping[str, ControllerEntry]:
@@ -89,8 +95,8 @@ def _table(*entries: ControllerEntry) -> Mapping[str, ControllerEntry]:
 
 #: Every controller, name → entry: the one table.
 ENTRIES: Mapping[str, ControllerEntry] = _table(
-    ControllerEntry("passivity", passivity.build, passivity),
-    ControllerEntry("passivity_paper", passivity.build_paper, passivity.PAPER_RATES),
+    ControllerEntry("passivity", passivity.build, passivity, gain_rules=2),
+    ControllerEntry("passivity_paper", passivity.build_paper, passivity.PAPER_RATES, gain_rules=2),
     ControllerEntry("computed_torque", computed_torque.build, computed_torque),
     ControllerEntry("pd_gravity", pd_gravity.build, pd_gravity),
     ControllerEntry("slotine_li", slotine_li.build, slotine_li),

@@ -207,6 +207,23 @@ def test_a_resume_at_changed_gains_is_refused_or_reruns_exactly_those_rows(tmp_p
     saved = yaml.safe_load((out / "config.yml").read_text())
     assert saved[RATES_KEY]["two_link"]["passivity"]["omega"] == 0.5 * omega
 
+    # the same rates, but recorded before the passivity laws' gain rules changed (loop 6 of
+    # docs/control_rates.md: no gain_rules key): refused, then only passivity runs again
+    assert saved[RATES_KEY]["two_link"]["passivity"]["gain_rules"] == 2
+    assert "gain_rules" not in saved[RATES_KEY]["two_link"]["computed_torque"]
+    earlier = yaml.safe_load(yaml.safe_dump(saved))
+    del earlier[RATES_KEY]["two_link"]["passivity"]["gain_rules"]
+    (out / "config.yml").write_text(yaml.safe_dump(earlier))
+    with pytest.raises(InvalidConfigError, match="gains of passivity on two_link changed"):
+        run_verdict(cfg, resume=True, progress=False)
+    calls.clear()
+    run_verdict(cfg, resume=True, progress=False, rerun_changed=True)
+    assert calls == ["passivity"] * 4
+    pd.testing.assert_series_equal(  # the same gains: the same numbers
+        load_frame(out / "episodes.csv").set_index(key).sort_index()["path_dist_rms"], new
+    )
+    saved = yaml.safe_load((out / "config.yml").read_text())
+
     del saved[RATES_KEY]  # a run written before the record: cannot be checked
     (out / "config.yml").write_text(yaml.safe_dump(saved))
     with pytest.raises(InvalidConfigError, match="records no rates"):

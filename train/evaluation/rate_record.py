@@ -21,7 +21,7 @@ from typing import Any
 
 import yaml
 
-from agents.registry import CONTROLLER_NAMES, effective_rates
+from agents.registry import CONTROLLER_NAMES, effective_rates, entry
 from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.robots import ROBOTS
 from train.common.arguments import RATES_KEY  # the key of config.yml that holds the record
@@ -37,6 +37,8 @@ from train.evaluation.results import read_episodes
 
 #: robot → controller → rate → value.
 Record = dict[str, dict[str, dict[str, Any]]]
+#: The key of a controller's record that holds its builder's revision (absent: the first).
+GAIN_RULES_KEY = "gain_rules"
 
 
 def rate_record(
@@ -47,19 +49,21 @@ def rate_record(
 ) -> Record:
     """robot → controller → its rates at ``gains`` ("default", "tuned" or a mapping), with
     ``given[controller]`` over them, for every registry controller of ``controllers``
-    (learned entrants skipped)."""
+    (learned entrants skipped); with ``gain_rules`` beside them where the controller's
+    builder has been revised (:class:`agents.registry.ControllerEntry`), so that a resume
+    sees the change although the rates are the same."""
     names = [c for c in controllers if c in CONTROLLER_NAMES]
     own = given or {}
-    # the rates each is built with: its own over the sweep's, then what its law fixes
-    return {
-        robot: {
-            c: effective_rates(
-                ROBOTS[robot], c, {**effective_rates(ROBOTS[robot], c, gains), **(own.get(c) or {})}
-            )
-            for c in names
-        }
-        for robot in robots
-    }
+
+    def rates(robot: str, c: str) -> dict[str, Any]:
+        # the rates it is built with: its own over the sweep's, then what its law fixes
+        out = effective_rates(
+            ROBOTS[robot], c, {**effective_rates(ROBOTS[robot], c, gains), **(own.get(c) or {})}
+        )
+        revision = entry(c).gain_rules
+        return out if revision == 1 else {**out, GAIN_RULES_KEY: revision}
+
+    return {robot: {c: rates(robot, c) for c in names} for robot in robots}
 
 
 def changed_pairs(saved: Mapping[str, Any], now: Record) -> list[tuple[str, str]]:
