@@ -315,8 +315,9 @@ def cap_for_rate(
       f = −k (H + W_r) M q̇ is a velocity feedback whose sign follows H + W_r, and off the
       path (H + W_r < 0) it pushes the arm along its own velocity, against the springs and
       dampers that pull it back; softening those alone undoes the balance the gains were
-      chosen with (docs/control_rates.md, loop 6: the tuned two-link at 250 Hz, K and D
-      × 0.28, was thrown 0.5–1.2 rad off the path by 2 of 200 impulses, 0 with k × 0.28);
+      chosen with (docs/control_rates.md, loop 6: with k left alone, the tuned two-link at
+      250 Hz was thrown past 0.1 rad by 5 of 100 impulses, 2 past 0.5; with k scaled, none —
+      ``python bench/impulse_throws.py --hz 250 --seeds 10``);
     * R lowered where needed so that (R + q_r'ᵀD q_r')/M_r(s) dt ≤ 0.8 · 2 on the path's
       slowest stretch (the extremes of M_r(s), not its mean M̄_r that R = ρ M̄_r scales by);
     * the pump k lowered where needed so that k dt ≤ 0.8 (:data:`PUMP_LIMIT`: the virtual
