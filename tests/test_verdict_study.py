@@ -5,6 +5,7 @@ aggregates with resamples paths, then seeds."""
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pandas as pd
@@ -414,11 +415,18 @@ def test_a_tank_entrants_tank_is_recorded_in_every_episode(tmp_path, residual_ru
     # 250 Hz on these paths with no residual at all)
     assert (mine["tank_overdrawn_j"] == 0.0).all()
     assert mine["balance_excess_j"].notna().all() and (mine["balance_excess_j"] <= RESIDUE_J).all()
-    others = df["controller"] != tank  # the controllers and the residual over PD + g
+    # the passivity law run alone keeps its own ledger (T = 0), the same residue bound:
+    # what a residual's excess is read against
+    law = df[df["controller"] == "passivity"]
+    assert len(law) == 2 * 2 * 2 and law["tank_overdrawn_j"].isna().all()
+    assert law["balance_excess_j"].notna().all() and (law["balance_excess_j"] <= RESIDUE_J).all()
+    assert (law["balance_excess_j"] >= 0.0).all()  # x_0 = 0 is among the steps
+    others = ~df["controller"].isin([tank, "passivity"])  # no storage, no ledger
     assert df.loc[others, list(vs.TANK_COLUMNS)].isna().all().all()
     text = (out / "verdict.md").read_text()
     assert "The energy tanks" in text and f"| two_link | {tank} | 8 | 0 | 0 |" in text
     assert "The storage balance" in text and "| two_link | run | periodic 1 | 4 |" in text
+    assert "| two_link | passivity | periodic 1 | 4 |" in text
     # a file written before the balance column loads, the column NaN
     lines = (out / "episodes.csv").read_text().splitlines()
     older = tmp_path / "older.csv"
@@ -426,6 +434,49 @@ def test_a_tank_entrants_tank_is_recorded_in_every_episode(tmp_path, residual_ru
     assert load_frame(older)["balance_excess_j"].isna().all()
     # a study without entrants keeps its columns (the committed verdict's)
     assert vs.columns(tiny(tmp_path / "w")) == vs.COLUMNS
+
+
+def test_the_laws_own_ledger_balances_a_pushs_work_and_not_a_wrong_model():
+    """The balance of the passivity law run alone (``EpisodeBalance``, T = 0) on the exact
+    plant stays at its discrete residue however much work an impulse does (W_d is in the
+    ledger), and grows by orders of magnitude when the plant's masses are not the model's
+    (``mismatch``: the law's storage is of its model) — the base's share a residual's
+    excess is read against; a divergence makes it +inf."""
+    from train.evaluation.episode import EpisodeSettings, Task, run_episode
+    from train.studies.verdict_entrants import EpisodeBalance
+
+    settings = EpisodeSettings(
+        "ptrack_gym/TwoLinkTrack-v0", 5.0, 250.0, "on_path", 0.5, 0.01, path="random",
+        path_seed=1,
+    )  # fmt: skip
+    excess, pushed_off = {}, {}
+    for dist in ("none", "impulse", "mismatch"):
+        for seed in (0, 1):
+            balance = EpisodeBalance()
+            row, _ = run_episode(
+                Task("passivity", dist, 1.0, seed, 0), settings, inspect=balance.inspect,
+                on_step=balance.on_step,
+            )  # fmt: skip
+            excess[dist, seed] = row["balance_excess_j"]
+            pushed_off[dist, seed] = row["path_dist_max"]
+            assert math.isnan(row["tank_overdrawn_j"])
+    for seed in (0, 1):
+        assert pushed_off["impulse", seed] > 5 * pushed_off["none", seed]  # it was pushed
+        assert 0.0 <= excess["none", seed] <= RESIDUE_J
+        assert 0.0 <= excess["impulse", seed] <= RESIDUE_J
+        assert excess["mismatch", seed] > 10 * excess["none", seed]
+    # a controller without a storage keeps no ledger; a diverged law's is +inf
+    balance = EpisodeBalance()
+    row, _ = run_episode(
+        Task("pd_gravity", "none", 1.0, 0, 0), settings, inspect=balance.inspect,
+        on_step=balance.on_step,
+    )  # fmt: skip
+    assert math.isnan(row["balance_excess_j"])
+    balance.ledger.record({"energy": 1.0, "pump_power": 0.0, "sync_power": 0.0}, 0.0, 0.0, 0.004)
+    from agents.policy import ControllerPolicy
+
+    balance.on_step(None, ControllerPolicy.__new__(ControllerPolicy), None)
+    assert balance.ledger.excess_max_j == math.inf
 
 
 def test_bad_entrants_are_refused_before_any_episode(tmp_path, residual_run):

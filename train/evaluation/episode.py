@@ -297,6 +297,11 @@ def phase_reader(controller: Controller) -> Callable[[], float]:
     return lambda: float(controller.diagnostics()["s"])
 
 
+#: ``on_step(env, policy, info)``: what :func:`rollout` calls after every step (``info`` the
+#: step's), and with ``info=None`` once when the policy diverged before a step.
+StepHook = Callable[[gym.Env[Any, Any], Any, dict[str, Any] | None], None]
+
+
 def _first_impulse_end(schedule: list[dict[str, Any]]) -> float | None:
     ends = [d["onset_s"] + d["duration_s"] for d in schedule if d["type"] in ("impulse", "push")]
     return min(ends) if ends else None
@@ -309,6 +314,7 @@ def rollout(
     keep_trace: bool = False,
     lean: bool = True,
     reset_options: dict[str, Any] | None = None,
+    on_step: StepHook | None = None,
 ) -> tuple[EpisodeRecord, np.ndarray | None]:
     """One episode of ``policy`` on ``env`` from ``env.reset(seed=reset_seed)`` until it
     terminates or is truncated (``reset_options``: the env's, e.g. ``{"s0": …}``): the
@@ -319,7 +325,9 @@ def rollout(
     any other policy's none. A controller that diverges (a non-finite torque,
     :class:`~ptrack_gym.errors.ControllerDivergedError`) ends the episode as unstable at
     the step it would have taken. The one episode loop of the package, for anything with SB3's
-    ``predict``.
+    ``predict``. ``on_step(env, policy, info)`` is called after every step with its info
+    (after the policy acted on the state that step began from), and once with ``info=None``
+    when the policy diverged before a step (:data:`StepHook`).
 
     With ``lean`` (default), a :class:`~agents.policy.ControllerPolicy` on an env that
     ``gym.make`` wrapped only in ``TimeLimit``, ``OrderEnforcing`` and ``PassiveEnvChecker``
@@ -356,8 +364,12 @@ def rollout(
             action = act(obs)
         except ControllerDivergedError:  # a non-finite torque: the closed loop is unstable
             unstable = True
+            if on_step is not None:
+                on_step(env, policy, None)
             break
         obs, _, terminated, truncated, info = step(action)
+        if on_step is not None:
+            on_step(env, policy, info)
         steps += 1
         if limit is not None and steps >= limit:  # gymnasium's TimeLimit, inlined
             truncated = True
@@ -426,10 +438,11 @@ def run_episode(
     settings: EpisodeSettings,
     keep_trace: bool = False,
     inspect: Callable[[gym.Env[Any, Any]], dict[str, Any]] | None = None,
+    on_step: StepHook | None = None,
 ) -> tuple[dict[str, Any], dict[str, np.ndarray] | None]:
     """Run ``task`` and return its CSV row (keys + metrics + wall time, and what
     ``inspect(env)`` reads off the env once the episode ended) and, with ``keep_trace``, the
-    time series for the example-episode plots."""
+    time series for the example-episode plots (``on_step``: :func:`rollout`'s)."""
     wall0 = time.perf_counter()
     policy: Predictor
     if task.controller.startswith(SB3_PREFIX):
@@ -440,7 +453,7 @@ def run_episode(
         controller = make_controller(task.controller, env, gains)
         policy = ControllerPolicy(env, controller)
     u = env.unwrapped
-    record, storage = rollout(env, policy, task.reset_seed, keep_trace)
+    record, storage = rollout(env, policy, task.reset_seed, keep_trace, on_step=on_step)
     metrics = episode_metrics(
         record,
         u.model,

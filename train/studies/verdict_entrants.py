@@ -166,7 +166,8 @@ def entrant_comparisons(
 #: residual over a passivity law (tank or not), the balance's largest excess over the
 #: episode, J: storage + tank against their start, the pump's, re-synchronisation's and
 #: disturbance's work (``agents.energy_tank.BalanceLedger``; added 2026-11-28, NaN in
-#: files written before).
+#: files written before) — and the same of a passivity law run alone, T = 0
+#: (:class:`EpisodeBalance`; added 2026-11-29, NaN in files written before).
 TANK_COLUMNS = ("tank_overdrawn_j", "tank_withheld_j", "balance_excess_j")
 
 
@@ -189,10 +190,52 @@ def tank_record(env: Any) -> dict[str, float]:
     return out
 
 
+class EpisodeBalance:
+    """The balance's largest excess of one verdict episode, whoever ran it: a residual's
+    from its wrapper's ledger (:func:`tank_record`), a passivity law run alone from a
+    ledger kept here (``BalanceLedger`` with T = 0: the law's own storage against its pump,
+    re-synchronisation and the disturbance's work) — so the base's own excess under a
+    plant or sensor other than its model stands beside its residuals' (issue 39).
+
+    One per episode: pass :meth:`on_step` to ``run_episode`` as ``on_step`` and
+    :meth:`inspect` as ``inspect``."""
+
+    def __init__(self) -> None:
+        from agents.energy_tank import BalanceLedger
+
+        self.ledger = BalanceLedger()
+
+    def on_step(self, env: Any, policy: Any, info: dict[str, Any] | None) -> None:
+        """Record the step a controller policy (:class:`agents.policy.ControllerPolicy`)
+        just took, where its law has a storage (``BALANCE_KEYS`` in its diagnostics);
+        ``info=None``: it diverged (+inf where anything was recorded)."""
+        from agents.energy_tank import BALANCE_KEYS
+        from agents.policy import ControllerPolicy
+
+        if not isinstance(policy, ControllerPolicy):
+            return
+        if info is None:
+            self.ledger.diverged()
+            return
+        diagnostics = policy.last_diagnostics
+        if all(key in diagnostics for key in BALANCE_KEYS):
+            work_j = float(info.get("disturbance_work_j", 0.0))
+            self.ledger.record(diagnostics, 0.0, work_j, float(env.unwrapped.dt))
+
+    def inspect(self, env: Any) -> dict[str, float]:
+        """:data:`TANK_COLUMNS` of the episode: the residual wrapper's (:func:`tank_record`),
+        or the controller's own balance where it kept one."""
+        out = tank_record(env)
+        if math.isnan(out["balance_excess_j"]):
+            out["balance_excess_j"] = float(self.ledger.excess_max_j)
+        return out
+
+
 def balance_markdown(df: pd.DataFrame) -> str:
     """Markdown: per robot, group of seeds (:func:`entrant_group`) and condition of the
-    residuals over a passivity law, the balance's largest excess per episode
-    (:data:`TANK_COLUMNS`): its median and maximum over the episodes (J)."""
+    residuals over a passivity law and of the passivity laws run alone, the balance's
+    largest excess per episode (:data:`TANK_COLUMNS`): its median and maximum over the
+    episodes (J)."""
     if "balance_excess_j" not in df.columns:
         return ""
     kept = df[df["balance_excess_j"].notna()]
@@ -357,7 +400,9 @@ def entrants_section(
             "excess of storage + tank over their start, the pump's, re-synchronisation's "
             "and disturbance's work in each episode; ≤ the discrete residue on the exact "
             "closed loop with a tank, `../shared/TANK.md`; the law's own storage, on its "
-            "model and its measured state):", "", balance,
+            "model and its measured state), beside the passivity laws' own run alone (tank "
+            "0): what a plant or sensor other than the law's model adds without any "
+            "residual:", "", balance,
         ]  # fmt: skip
     tanks = tank_markdown(df)
     if tanks:

@@ -68,7 +68,7 @@ from train.evaluation.verdict import (
     words,
 )
 from train.studies.rows import run_rows
-from train.studies.verdict_entrants import TANK_COLUMNS, tank_record
+from train.studies.verdict_entrants import TANK_COLUMNS, EpisodeBalance
 from train.studies.verdict_paths import FOCUS, path_outcomes, path_table
 
 KEY_COLUMNS = ("robot", "path", "controller", "disturbance", "level", "seed", "episode")
@@ -252,8 +252,13 @@ def columns(cfg: VerdictConfig) -> tuple[str, ...]:
 
 def run_one(cfg: VerdictConfig, robot: str, path_seed: int, task: Task) -> dict[str, Any]:
     """The CSV row of one episode (:func:`columns`)."""
-    inspect = tank_record if cfg.entrants else None
-    row = run_episode(task, cfg.settings(robot, path_seed), inspect=inspect)[0]
+    if not cfg.entrants:
+        row = run_episode(task, cfg.settings(robot, path_seed))[0]
+    else:
+        balance = EpisodeBalance()
+        row = run_episode(
+            task, cfg.settings(robot, path_seed), inspect=balance.inspect, on_step=balance.on_step
+        )[0]
     return {**row, "robot": robot, "path": str(path_seed)}
 
 
