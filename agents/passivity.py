@@ -340,7 +340,8 @@ class PassivityController:
                     f"its phase damping (R + q_r'ᵀD q_r')/M_r(s) reaches "
                     f"{self.phase_rate_1_s:.4g} 1/s on the path's slowest stretch, "
                     f"{self.phase_rate_1_s * dt_s:.3g} per period (at most "
-                    f"{PHASE_DAMPING_LIMIT:g}); lower R (the gain rate 'rho')"
+                    f"{PHASE_DAMPING_LIMIT:g}); lower R (the gain rate 'rho') or the joint "
+                    f"dampers D (the gain rate 'damping_ratio')"
                 )
             else:
                 why = (

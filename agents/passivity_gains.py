@@ -12,7 +12,8 @@ period dt:
 
 then capped for the rate from the path's extremes (:func:`cap_for_rate`): K, D and
 k_pump scaled together where the fastest coupled mode of M(q)⁻¹K on the path would turn
-more than 0.8 rad per sample, R lowered where (R + q_r'ᵀDq_r')/M_r(s) dt would exceed 1.6
+more than 0.8 rad per sample or where the joint dampers' q_r'ᵀDq_r'/M_r(s) dt alone would
+exceed 0.9 × 1.6, R lowered where (R + q_r'ᵀDq_r')/M_r(s) dt would exceed 1.6
 on the slowest stretch, k_pump lowered where k_pump dt would exceed 0.8. The rates are
 :data:`DEFAULT_RATES` updated by the robot profile's
 ``controller_gains["passivity"]`` (ω, ω_s in rad/s; ρ, λ in 1/s; m_floor in kg·m²; c; ζ
@@ -94,6 +95,14 @@ _PUMPS = ("metric", "paper")
 #: The default and tuned gains run at most this fraction of their stated period limit
 #: (:func:`cap_for_rate`, :meth:`PassivityController.max_period_s`).
 RATE_MARGIN = 0.8
+#: The largest share of the phase loop's rate budget (:data:`RATE_MARGIN` ·
+#: ``PHASE_DAMPING_LIMIT`` M_r(s)/dt) the joint dampers' q_r'ᵀD q_r' may take anywhere on the
+#: path (:func:`cap_for_rate`): R keeps at least a tenth of the slowest stretch's budget.
+#: Above every share the default and tuned gains reach where they were served before the
+#: rule (four robots, 1 kHz to 100 Hz, the default path and 70 random ones: largest 0.78,
+#: the iiwa's tuned gains at 500 Hz on random path 307), so it changes none of them
+#: (``docs/control_rates.md``, loop 7).
+DAMPER_SHARE_MAX = 0.9
 
 
 @dataclass(frozen=True)
@@ -318,6 +327,12 @@ def cap_for_rate(
       chosen with (docs/control_rates.md, loop 6: with k left alone, the tuned two-link at
       250 Hz was thrown past 0.1 rad by 5 of 100 impulses, 2 past 0.5; with k scaled, none —
       ``python bench/impulse_throws.py --hz 250 --seeds 10``);
+    * K, D and k scaled by one factor more where the joint dampers' share of the phase
+      loop, q_r'ᵀD q_r'/M_r(s) dt, would exceed 0.9 (:data:`DAMPER_SHARE_MAX`) of its
+      limit 0.8 · 2 anywhere on the path: D sized on the home pose's inertias can exceed
+      it alone on a stretch where the path moves the joints whose inertia is far below
+      home's (the iiwa's default gains at 250 Hz on random path 307: 1.09 of it, refused
+      before — R could not go below 0);
     * R lowered where needed so that (R + q_r'ᵀD q_r')/M_r(s) dt ≤ 0.8 · 2 on the path's
       slowest stretch (the extremes of M_r(s), not its mean M̄_r that R = ρ M̄_r scales by);
     * the pump k lowered where needed so that k dt ≤ 0.8 (:data:`PUMP_LIMIT`: the virtual
@@ -339,8 +354,19 @@ def cap_for_rate(
         )
     cols = tables.columns
     qd, m_r = cols[:, n : 2 * n], cols[:, 3 * n]
+    budget = RATE_MARGIN * PHASE_DAMPING_LIMIT * m_r / dt_s  # of R + q_r'ᵀD q_r' (J·s)
     damper = np.einsum("ij,j,ij->i", qd, gains.damping(n), qd)  # q_r'ᵀD q_r' (J·s)
-    r_max = float(np.min(RATE_MARGIN * PHASE_DAMPING_LIMIT * m_r / dt_s - damper))
+    share = float(np.max(damper / budget))
+    if share > DAMPER_SHARE_MAX:  # the joint dampers alone would leave R no room
+        scale = DAMPER_SHARE_MAX / share
+        gains = dataclasses.replace(
+            gains,
+            K=tuple(float(k) for k in scale * gains.stiffness(n)),
+            D=tuple(float(d) for d in scale * gains.damping(n)),
+            k_pump=float(scale * gains.k_pump),
+        )
+        damper = scale * damper
+    r_max = float(np.min(budget - damper))
     if gains.R > r_max > 0.0:
         gains = dataclasses.replace(gains, R=r_max)
     k_max = RATE_MARGIN * PUMP_LIMIT / dt_s
