@@ -167,7 +167,8 @@ def entrant_comparisons(
 #: episode, J: storage + tank against their start, the pump's, re-synchronisation's and
 #: disturbance's work (``agents.energy_tank.BalanceLedger``; added 2026-11-28, NaN in
 #: files written before) — and the same of a passivity law run alone, T = 0
-#: (:class:`EpisodeBalance`; added 2026-11-29, NaN in files written before).
+#: (:class:`EpisodeBalance`; added later on 2026-11-28, NaN in the controllers' rows of
+#: files written before).
 TANK_COLUMNS = ("tank_overdrawn_j", "tank_withheld_j", "balance_excess_j")
 
 
