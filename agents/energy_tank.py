@@ -171,10 +171,11 @@ class BalanceLedger:
         self.excess_j = math.nan
         self.excess_max_j = math.nan
 
-    def diverged(self) -> None:
-        """The law's state ran to a non-finite value this step: x = +inf (nothing, for a
-        ledger that never recorded: a base without a storage)."""
-        if self._start is not None:
+    def diverged(self, storage: bool = False) -> None:
+        """The law's state ran to a non-finite value this step: x = +inf where the ledger
+        recorded a step or ``storage`` says the law has one (it diverged at its first);
+        nothing for a base without a storage."""
+        if self._start is not None or storage:
             self.excess_j = self.excess_max_j = math.inf
 
     def record(

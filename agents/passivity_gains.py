@@ -332,9 +332,9 @@ def cap_for_rate(
       limit 0.8 · 2 anywhere on the path: D sized on the home pose's inertias can exceed
       it alone on a stretch where the path moves the joints whose inertia is far below
       home's (the iiwa's default gains at 250 Hz on random path 307: 1.09 of it, refused
-      before — R could not go below 0);
-    * R lowered where needed so that (R + q_r'ᵀD q_r')/M_r(s) dt ≤ 0.8 · 2 on the path's
-      slowest stretch (the extremes of M_r(s), not its mean M̄_r that R = ρ M̄_r scales by);
+      before — R could not go below 0; ``bench/damper_share.py`` surveys the shares);
+    * R lowered where needed so that (R + q_r'ᵀD q_r')/M_r(s) dt ≤ 0.8 · 2 everywhere on
+      the path (its extremes, not the mean M̄_r that R = ρ M̄_r scales by);
     * the pump k lowered where needed so that k dt ≤ 0.8 (:data:`PUMP_LIMIT`: the virtual
       system's pump term is stepped explicitly) — unless ``limit_pump`` is false (a pass
       whose result is capped again: the limit is taken once, at the end).
@@ -365,9 +365,9 @@ def cap_for_rate(
             D=tuple(float(d) for d in scale * gains.damping(n)),
             k_pump=float(scale * gains.k_pump),
         )
-        damper = scale * damper
-    r_max = float(np.min(budget - damper))
-    if gains.R > r_max > 0.0:
+        damper = np.einsum("ij,j,ij->i", qd, gains.damping(n), qd)
+    r_max = float(np.min(budget - damper))  # > 0 while the dampers take ≤ 0.9 of it
+    if gains.R > r_max > 0.0:  # (≤ 0 only with the rule off: check_rate refuses it then)
         gains = dataclasses.replace(gains, R=r_max)
     k_max = RATE_MARGIN * PUMP_LIMIT / dt_s
     if limit_pump and gains.k_pump > k_max:

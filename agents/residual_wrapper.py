@@ -276,6 +276,12 @@ class ResidualWrapper(
         policy's action (zeros without a prior); a copy."""
         return self._prior.copy()
 
+    def _has_storage(self) -> bool:
+        """Whether the base's law keeps a storage (its diagnostics have ``BALANCE_KEYS``):
+        a divergence is then +inf in the balance even before its first record."""
+        diagnostics = self.controller.diagnostics()
+        return all(key in diagnostics for key in BALANCE_KEYS)
+
     def _augment(self, obs: np.ndarray) -> np.ndarray:
         """The observation with the controller block; also sets a_prior at this state."""
         if self.features is None and self._prior_features is None:
@@ -332,7 +338,7 @@ class ResidualWrapper(
         q, qd = u.measured_joint_state()
         tau_base = self.controller.step(q, qd, u.dt)  # (n,) N·m
         if not np.all(np.isfinite(tau_base)):  # the base diverged: the episode ends as unstable
-            self.balance.diverged()
+            self.balance.diverged(self._has_storage())
             info = {"unstable": True, "controller_diverged": True, "t_s": u.t}
             penalty = -float(u.config.unstable_penalty)
             return self._last_obs, penalty, True, False, info
@@ -390,7 +396,7 @@ class ResidualWrapper(
         info["controller"] = diagnostics
         augmented = self._augment(obs)
         if not np.all(np.isfinite(augmented)):  # the base's own state diverged: as above
-            self.balance.diverged()
+            self.balance.diverged(self._has_storage())
             info.update(unstable=True, controller_diverged=True)
             return self._last_obs, -float(u.config.unstable_penalty), True, False, info
         self._last_obs = augmented

@@ -205,23 +205,27 @@ class EpisodeBalance:
         from agents.energy_tank import BalanceLedger
 
         self.ledger = BalanceLedger()
+        self._storage: bool | None = None  # whether the policy's law has one (first step)
 
     def on_step(self, env: Any, policy: Any, info: dict[str, Any] | None) -> None:
         """Record the step a controller policy (:class:`agents.policy.ControllerPolicy`)
         just took, where its law has a storage (``BALANCE_KEYS`` in its diagnostics);
-        ``info=None``: it diverged (+inf where anything was recorded)."""
+        ``info=None``: it diverged (+inf for a law with a storage, even at its first
+        step)."""
         from agents.energy_tank import BALANCE_KEYS
         from agents.policy import ControllerPolicy
 
         if not isinstance(policy, ControllerPolicy):
             return
-        if info is None:
-            self.ledger.diverged()
+        if self._storage is None:
+            self._storage = all(key in policy.last_diagnostics for key in BALANCE_KEYS)
+        if not self._storage:
             return
-        diagnostics = policy.last_diagnostics
-        if all(key in diagnostics for key in BALANCE_KEYS):
-            work_j = float(info.get("disturbance_work_j", 0.0))
-            self.ledger.record(diagnostics, 0.0, work_j, float(env.unwrapped.dt))
+        if info is None:
+            self.ledger.diverged(storage=True)
+            return
+        work_j = float(info.get("disturbance_work_j", 0.0))
+        self.ledger.record(policy.last_diagnostics, 0.0, work_j, float(env.unwrapped.dt))
 
     def inspect(self, env: Any) -> dict[str, float]:
         """:data:`TANK_COLUMNS` of the episode: the residual wrapper's (:func:`tank_record`),
@@ -396,14 +400,19 @@ def entrants_section(
     ]  # fmt: skip
     balance = balance_markdown(df)
     if balance:
+        alone = df["balance_excess_j"].notna() & ~df["controller"].str.startswith("sb3:")
+        beside = (
+            ", beside the passivity laws' own run alone (tank 0): what a plant or sensor "
+            "other than the law's model adds without any residual"
+            if alone.any()
+            else ""
+        )
         lines += [
             "", "The storage balance of the residuals over a passivity law (the largest "
             "excess of storage + tank over their start, the pump's, re-synchronisation's "
             "and disturbance's work in each episode; ≤ the discrete residue on the exact "
             "closed loop with a tank, `../shared/TANK.md`; the law's own storage, on its "
-            "model and its measured state), beside the passivity laws' own run alone (tank "
-            "0): what a plant or sensor other than the law's model adds without any "
-            "residual:", "", balance,
+            f"model and its measured state){beside}:", "", balance,
         ]  # fmt: skip
     tanks = tank_markdown(df)
     if tanks:
