@@ -3,7 +3,7 @@ caps it changes (loop 7 of docs/control_rates.md): every robot's default and tun
 built with the rule (``DAMPER_SHARE_MAX`` = 0.9) and without it, on the default path and
 random admissible paths, at several control rates.
 
-    python bench/damper_share.py                       # the survey of loop 7 (~20 min)
+    python bench/damper_share.py                       # the survey of loop 7 (~10 min)
     python bench/damper_share.py --robots iiwa --hz 250 --paths 307
 
 The share is max_s q_r'ᵀD q_r' / (0.8 · 2 M_r(s)/dt) of the gains built with the rule.
