@@ -118,8 +118,8 @@ def test_storage_plus_tank_grows_only_by_pump_sync_and_disturbance_work(policy, 
     reason="KNOWN DEFECT (2026-11-28, issue 39): a constant residual torque through the tank "
     "grows the law's own storage beyond its flows on the exact plant (excess 5.5 J here, "
     "0.2-5.5 J from 1 kHz to 250 Hz) while the tank is never overdrawn: the tank pays the "
-    "residual's port work exactly, but the law's balance itself breaks under a persistent "
-    "external torque; docs/rl.md, part A over the current law",
+    "residual's port work exactly, but the law's discrete balance breaks where a persistent "
+    "torque holds the arm near a stall; docs/rl.md, part A over the current law",
 )
 def test_a_constant_residual_through_the_tank_keeps_the_balance():
     """What issue 39 requires of the tank, on the exact closed loop: storage + tank never
