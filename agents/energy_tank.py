@@ -36,6 +36,12 @@ T ≥ 0. In discrete time (one control step of length Δt):
   work the residual really did, (q_{k+1} − q_k)ᵀ(τ_applied − τ_base) — the env's ledger for
   τ_d. The floor T_min > 0 absorbs the prediction's error (a plant other than the model,
   the torque limits); T below 0 is reported (``overdrawn_j``), never hidden.
+
+The discrete balance holds up to the law's own discrete residue (E_{k+1} − E_k against its
+flows), which the tank does not pay. It is not always small: a residual holding a
+persistent torque can keep the arm near a stall where it grows by joules (0.1 τ_max
+constant on the two-link at 250 Hz: 5.5 J in 5 s with the tank never overdrawn; an open
+defect, ``docs/rl.md``; ``tests/test_energy_tank.py``'s strict xfail states it).
 """
 
 from __future__ import annotations
