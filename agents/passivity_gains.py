@@ -352,10 +352,7 @@ def cap_for_rate(
             D=tuple(float(d) for d in scale * gains.damping(n)),
             k_pump=float(scale * gains.k_pump),
         )
-    cols = tables.columns
-    qd, m_r = cols[:, n : 2 * n], cols[:, 3 * n]
-    budget = RATE_MARGIN * PHASE_DAMPING_LIMIT * m_r / dt_s  # of R + q_r'ᵀD q_r' (J·s)
-    damper = np.einsum("ij,j,ij->i", qd, gains.damping(n), qd)  # q_r'ᵀD q_r' (J·s)
+    damper, budget = phase_loads(tables, gains.damping(n), dt_s)
     share = float(np.max(damper / budget))
     if share > DAMPER_SHARE_MAX:  # the joint dampers alone would leave R no room
         scale = DAMPER_SHARE_MAX / share
@@ -365,7 +362,7 @@ def cap_for_rate(
             D=tuple(float(d) for d in scale * gains.damping(n)),
             k_pump=float(scale * gains.k_pump),
         )
-        damper = np.einsum("ij,j,ij->i", qd, gains.damping(n), qd)
+        damper, _ = phase_loads(tables, gains.damping(n), dt_s)
     r_max = float(np.min(budget - damper))  # > 0 while the dampers take ≤ 0.9 of it
     if gains.R > r_max > 0.0:  # (≤ 0 only with the rule off: check_rate refuses it then)
         gains = dataclasses.replace(gains, R=r_max)
@@ -373,6 +370,26 @@ def cap_for_rate(
     if limit_pump and gains.k_pump > k_max:
         gains = dataclasses.replace(gains, k_pump=k_max)
     return gains
+
+
+def phase_loads(
+    tables: PassivityTables, damping: FloatArray, dt_s: float
+) -> tuple[FloatArray, FloatArray]:
+    """Per row of ``tables`` (the path's samples): the joint dampers' load on the phase loop
+    q_r'ᵀD q_r' (J·s, D = diag(``damping``)) and the loop's budget for R + q_r'ᵀD q_r' at the
+    period ``dt_s``, :data:`RATE_MARGIN` · ``PHASE_DAMPING_LIMIT`` · M_r(s)/dt (J·s)."""
+    n = tables.n
+    qd, m_r = tables.columns[:, n : 2 * n], tables.columns[:, 3 * n]
+    damper = np.einsum("ij,j,ij->i", qd, np.asarray(damping, dtype=np.float64), qd)
+    return damper, RATE_MARGIN * PHASE_DAMPING_LIMIT * m_r / dt_s
+
+
+def damper_share(tables: PassivityTables, damping: FloatArray, dt_s: float) -> float:
+    """The joint dampers' largest share of the phase loop's budget on the path,
+    max_s q_r'ᵀD q_r' / (0.8 · 2 M_r(s)/dt) (:func:`phase_loads`; :func:`cap_for_rate`
+    keeps it ≤ :data:`DAMPER_SHARE_MAX`)."""
+    damper, budget = phase_loads(tables, damping, dt_s)
+    return float(np.max(damper / budget))
 
 
 def default_gains(ctx: ControlContext, tables: PassivityTables | None = None) -> PassivityGains:

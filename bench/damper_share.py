@@ -26,8 +26,8 @@ import ptrack_gym  # noqa: F401  (registers the envs)
 from agents import passivity_gains
 from agents.base import ControlContext
 from agents.passivity import PassivityController
-from agents.passivity_sampling import PHASE_DAMPING_LIMIT
-from agents.passivity_tables import PassivityTables, passivity_tables
+from agents.passivity_gains import damper_share
+from agents.passivity_tables import passivity_tables
 from agents.registry import entry, tuned_rates
 from ptrack_gym.errors import ControlRateError
 from ptrack_gym.robots import ROBOTS, robot_profile
@@ -52,15 +52,6 @@ def build(ctx: ControlContext, rates: dict | None, cap: float) -> PassivityContr
         passivity_gains.DAMPER_SHARE_MAX = DEFAULT_CAP
 
 
-def damper_share(ctrl: PassivityController, tables: PassivityTables, dt_s: float) -> float:
-    """max_s q_r'ᵀD q_r' / (0.8 · 2 M_r(s)/dt) of ``ctrl``'s gains on its path."""
-    n = len(ctrl.d_diag)
-    qd, m_r = tables.columns[:, n : 2 * n], tables.columns[:, 3 * n]
-    damper = np.einsum("ij,j,ij->i", qd, ctrl.d_diag, qd)
-    budget = passivity_gains.RATE_MARGIN * PHASE_DAMPING_LIMIT * m_r / dt_s
-    return float(np.max(damper / budget))
-
-
 def survey(
     robots: Sequence[str], rates_hz: Sequence[float], paths: Sequence[int | None]
 ) -> list[dict]:
@@ -77,12 +68,13 @@ def survey(
                 for gain_set in ("default", "tuned"):
                     rates = None if gain_set == "default" else tuned_rates(robot, "passivity")
                     off, on = build(ctx, rates, np.inf), build(ctx, rates, DEFAULT_CAP)
+                    share = np.nan if on is None else damper_share(tables, on.d_diag, 1.0 / hz)
                     row = {
                         "robot": robot, "path": "default" if seed is None else seed,
                         "hz": hz, "gains": gain_set, "refused_before": off is None,
                         "refused_now": on is None,
                         "same": off is not None and on is not None and off.gains == on.gains,
-                        "share": np.nan if on is None else damper_share(on, tables, 1.0 / hz),
+                        "share": share,
                     }  # fmt: skip
                     rows.append(row)
                     print(*list(row.values())[:-1], f"{row['share']:.3f}", flush=True)

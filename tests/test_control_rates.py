@@ -83,12 +83,13 @@ def test_default_and_tuned_gains_are_capped_inside_the_stated_limit(robot: str) 
             env.close()
 
 
-def _damper_share(ctrl: PassivityController, tables: PassivityTables, dt_s: float) -> float:
+def _damper_share(damping: np.ndarray, tables: PassivityTables, dt_s: float) -> float:
     """max_s q_r'ᵀD q_r' / (0.8 · 2 M_r(s)/dt): the joint dampers' share of the phase
-    loop's rate budget on the path, read off the built controller's gains."""
-    n = len(ctrl.d_diag)
+    loop's rate budget on the path, computed here from the tables' columns (not by
+    ``passivity_gains.damper_share``, which it checks)."""
+    n = len(damping)
     qd, m_r = tables.columns[:, n : 2 * n], tables.columns[:, 3 * n]
-    damper = np.einsum("ij,j,ij->i", qd, ctrl.d_diag, qd)
+    damper = np.einsum("ij,j,ij->i", qd, damping, qd)
     return float(np.max(damper * dt_s / (0.8 * sampling.PHASE_DAMPING_LIMIT * m_r)))
 
 
@@ -113,10 +114,8 @@ def test_joint_dampers_that_would_fill_the_phase_budget_soften_the_springs(monke
     # one factor for K, D and the pump (c = D/(K dt) and the pump's balance kept), the one
     # that brings the dampers' share to 0.9; the springs' fastest mode only slows
     n = ctx.model.n
-    qd, m_r = tables.columns[:, n : 2 * n], tables.columns[:, 3 * n]
-    share_off = float(
-        np.max(np.einsum("ij,j,ij->i", qd, off.damping(n), qd) * (1 / hz) / (1.6 * m_r))
-    )
+    share_off = _damper_share(off.damping(n), tables, 1.0 / hz)
+    assert share_off == pytest.approx(passivity_gains.damper_share(tables, off.damping(n), 1 / hz))
     assert share_off > 1.0  # the dampers alone past the whole budget (1.09)
     factor = 0.9 / share_off
     np.testing.assert_allclose(on.stiffness(n) / off.stiffness(n), factor, rtol=1e-12)
@@ -128,7 +127,7 @@ def test_joint_dampers_that_would_fill_the_phase_budget_soften_the_springs(monke
     )
     ctrl = make_controller("passivity", env, "default")
     assert 1.0 / hz <= 0.8 * ctrl.max_period_s() * (1 + 1e-9)
-    assert _damper_share(ctrl, tables, 1.0 / hz) == pytest.approx(0.9, rel=1e-6)
+    assert _damper_share(ctrl.d_diag, tables, 1.0 / hz) == pytest.approx(0.9, rel=1e-6)
     assert ctrl.gains.R > 0.0
     record, _ = rollout(env, ControllerPolicy(env, ctrl), reset_seed=0)
     assert not record.unstable and len(record.t_s) == round(4.0 * hz)
@@ -141,7 +140,7 @@ def test_joint_dampers_that_would_fill_the_phase_budget_soften_the_springs(monke
     ):
         env, _, tables = _context(robot, rate, seed)
         ctrl = make_controller("passivity", env, gains)
-        assert 0.0 < _damper_share(ctrl, tables, 1.0 / rate) < 0.9
+        assert 0.0 < _damper_share(ctrl.d_diag, tables, 1.0 / rate) < 0.9
         monkeypatch.setattr(passivity_gains, "DAMPER_SHARE_MAX", np.inf)
         off = make_controller("passivity", env, gains)
         monkeypatch.undo()
