@@ -145,6 +145,12 @@ class EnergyTank:
 BALANCE_KEYS = ("energy", "pump_power", "sync_power")
 
 
+def has_storage(diagnostics: dict[str, float]) -> bool:
+    """Whether a controller's ``diagnostics`` carry a storage a :class:`BalanceLedger` can
+    keep (every one of :data:`BALANCE_KEYS`: the passivity laws')."""
+    return all(key in diagnostics for key in BALANCE_KEYS)
+
+
 @dataclass
 class BalanceLedger:
     """The tank's balance along one episode (module docstring; ``../shared/TANK.md``):

@@ -93,7 +93,7 @@ from gymnasium import spaces
 from gymnasium.envs.registration import EnvSpec
 
 from agents.base import Controller, FloatArray, ObservesAppliedTorque
-from agents.energy_tank import BALANCE_KEYS, BalanceLedger
+from agents.energy_tank import BalanceLedger, has_storage
 from agents.policy import torque_to_action
 from agents.registry import make_controller
 from agents.residual_features import PRIOR_ERROR_FEATURES, ControllerFeatures, prior_error_names
@@ -276,12 +276,6 @@ class ResidualWrapper(
         policy's action (zeros without a prior); a copy."""
         return self._prior.copy()
 
-    def _has_storage(self) -> bool:
-        """Whether the base's law keeps a storage (its diagnostics have ``BALANCE_KEYS``):
-        a divergence is then +inf in the balance even before its first record."""
-        diagnostics = self.controller.diagnostics()
-        return all(key in diagnostics for key in BALANCE_KEYS)
-
     def _augment(self, obs: np.ndarray) -> np.ndarray:
         """The observation with the controller block; also sets a_prior at this state."""
         if self.features is None and self._prior_features is None:
@@ -338,7 +332,7 @@ class ResidualWrapper(
         q, qd = u.measured_joint_state()
         tau_base = self.controller.step(q, qd, u.dt)  # (n,) N·m
         if not np.all(np.isfinite(tau_base)):  # the base diverged: the episode ends as unstable
-            self.balance.diverged(self._has_storage())
+            self.balance.diverged(has_storage(self.controller.diagnostics()))
             info = {"unstable": True, "controller_diverged": True, "t_s": u.t}
             penalty = -float(u.config.unstable_penalty)
             return self._last_obs, penalty, True, False, info
@@ -364,7 +358,7 @@ class ResidualWrapper(
         inner_action = torque_to_action(tau_base + tau_res, self.torque_limits_nm)
         obs, reward, terminated, truncated, info = self.env.step(inner_action)
         diagnostics = self.controller.diagnostics()
-        if all(key in diagnostics for key in BALANCE_KEYS):
+        if has_storage(diagnostics):
             level = self.tank.level_j if self.tank is not None else 0.0  # T_k, before settling
             info["balance_excess_j"] = self.balance.record(
                 diagnostics, level, float(info.get("disturbance_work_j", 0.0)), u.dt
@@ -396,7 +390,7 @@ class ResidualWrapper(
         info["controller"] = diagnostics
         augmented = self._augment(obs)
         if not np.all(np.isfinite(augmented)):  # the base's own state diverged: as above
-            self.balance.diverged(self._has_storage())
+            self.balance.diverged(has_storage(self.controller.diagnostics()))
             info.update(unstable=True, controller_diverged=True)
             return self._last_obs, -float(u.config.unstable_penalty), True, False, info
         self._last_obs = augmented

@@ -209,16 +209,16 @@ class EpisodeBalance:
 
     def on_step(self, env: Any, policy: Any, info: dict[str, Any] | None) -> None:
         """Record the step a controller policy (:class:`agents.policy.ControllerPolicy`)
-        just took, where its law has a storage (``BALANCE_KEYS`` in its diagnostics);
+        just took, where its law has a storage (``agents.energy_tank.has_storage``);
         ``info=None``: it diverged (+inf for a law with a storage, even at its first
         step)."""
-        from agents.energy_tank import BALANCE_KEYS
+        from agents.energy_tank import has_storage
         from agents.policy import ControllerPolicy
 
         if not isinstance(policy, ControllerPolicy):
             return
         if self._storage is None:
-            self._storage = all(key in policy.last_diagnostics for key in BALANCE_KEYS)
+            self._storage = has_storage(policy.last_diagnostics)
         if not self._storage:
             return
         if info is None:
