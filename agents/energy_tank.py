@@ -24,24 +24,46 @@ residual injects, capped at T_max (a quiet stretch banks no more). Then
     \\le P_{pump} + P_{sync} + \\dot q^\\top \\tau_d
 
 whatever the network outputs, and E ≤ E(0) + T(0) + ∫(P_pump + P_sync + q̇ᵀτ_d) as long as
-T ≥ 0. In discrete time (one control step of length Δt):
+T ≥ 0. In discrete time (one control step of length Δt) the tank is kept at the law's
+*sampled port*, where energy really changes hands (Franken et al. 2011's passivity layer):
 
 * **gate** (:meth:`EnergyTank.gate`, before the step): the residual is scaled by
   λ ∈ [0, 1], the largest with W(λ) ≤ T − T_min, W the work λτ_res is predicted to do over
   the step on the nominal model — semi-implicit Euler, q̇⁺ = q̇ + Δt M⁻¹(τ_base + λτ_res − h):
   W(λ) = λ a₁ + λ² a₂, a₁ = Δt (q̇ + Δt M⁻¹(τ_base − h))ᵀτ_res, a₂ = Δt² τ_resᵀM⁻¹τ_res ≥ 0.
-  A dissipative correction (W(1) ≤ T − T_min) passes whole; with the tank at its floor an
-  injecting one is held back entirely (λ = 0: the base alone);
-* **settle** (:meth:`EnergyTank.settle`, after it): T ← min(T_max, T + βDΔt − W), W the
-  work the residual really did, (q_{k+1} − q_k)ᵀ(τ_applied − τ_base) — the env's ledger for
-  τ_d. The floor T_min > 0 absorbs the prediction's error (a plant other than the model,
-  the torque limits); T below 0 is reported (``overdrawn_j``), never hidden.
+  A correction within the budget (W(1) ≤ T − T_min) passes whole; with the tank at or
+  below its floor it is held back entirely (λ = 0: the base alone), a dissipative one
+  too (TANK.md's "scaled to zero": a torque opposing the arm can hold it near a stall,
+  where the sampled law creates energy — fill);
+* **settle** (:meth:`EnergyTank.settle`, after it): T ← min(T_max, T − W), W the work the
+  residual really did, (q_{k+1} − q_k)ᵀ(τ_applied − τ_base) — the env's ledger for τ_d.
+  The floor T_min > 0 absorbs the prediction's error (a plant other than the model, the
+  torque limits); T below 0 is reported (``overdrawn_j``), never hidden;
+* **fill** (:meth:`EnergyTank.fill`, once the law has read the next state): with the energy
+  the law really dissipated over the step, measured at its port (:class:`PortDissipation`),
 
-The discrete balance holds up to the law's own discrete residue (E_{k+1} − E_k against its
-flows), which the tank does not pay. It is not always small: a residual holding a
-persistent torque can keep the arm near a stall where it grows by joules (0.1 τ_max
-constant on the two-link at 250 Hz: 5.5 J in 5 s with the tank never overdrawn; an open
-defect, ``docs/rl.md``; ``tests/test_energy_tank.py``'s strict xfail states it).
+  .. math::
+
+      \\Delta_k = -(L_{k+1} - L_k) - \\tau_k^\\top (q_{k+1} - q_k)
+                  + (P_{pump,k} + P_{sync,k}) \\Delta t,
+
+  L = E − H the law's virtual storage and τ_k its torque held over the step:
+  T ← min(T_max, T + β Δ_k) where Δ_k ≥ 0 and T ← T + Δ_k where the sampled law *created*
+  energy (Δ_k < 0). In continuous time Δ = D dt; sampled, Δ_k = D_k Δt − ρ_k with a
+  residue ρ_k that a torque held while the arm turns near a stall makes positive by
+  joules (a residual holding 0.1 τ_max on the two-link at 250 Hz: 5.5 J over 5 s, which
+  broke the balance when the tank was filled with β D Δt).
+
+Then, on the exact plant (where the arm's energy H changes over a step by τ_appliedᵀΔq +
+the disturbance's work, up to the simulator's integration residue):
+
+.. math::
+
+    (E + T)_k - (E + T)_0 - \\sum (P_{pump} + P_{sync}) \\Delta t - W_d
+    = -(1 - \\beta) \\sum_{\\Delta_j \\ge 0} \\Delta_j - \\text{(cap)} + \\text{(simulator)}
+    \\le \\text{(simulator)},
+
+"cap" ≥ 0 what T_max turned away, T_k read after Δ_{k−1} is filled.
 """
 
 from __future__ import annotations
@@ -76,9 +98,12 @@ class EnergyTank:
     cap_j: float = 2.0
     level_j: float = field(init=False)
     withheld_j: float = field(init=False, default=0.0)
-    """Energy the gate held back this episode: Σ W(1) − W(λ) over the steps (J)."""
+    """Energy the gate held back this episode: Σ W(1) − W(λ) over the steps (J; a
+    dissipative correction held back at the floor counts negative)."""
     overdrawn_j: float = field(init=False, default=0.0)
     """The deepest the level went below 0 this episode (J, ≥ 0; 0 when it never did)."""
+    created_j: float = field(init=False, default=0.0)
+    """Energy the sampled law created this episode and the tank paid: Σ max(−Δ_k, 0) (J)."""
 
     def __post_init__(self) -> None:
         values = (self.beta, self.initial_j, self.floor_j, self.cap_j)
@@ -98,6 +123,7 @@ class EnergyTank:
         self.level_j = float(self.initial_j)
         self.withheld_j = 0.0
         self.overdrawn_j = 0.0
+        self.created_j = 0.0
 
     def gate(
         self,
@@ -122,6 +148,9 @@ class EnergyTank:
         whole = a1 + a2
         if whole <= budget:
             return 1.0
+        # at or below the floor the residual is held back entirely, its dissipative part
+        # too: a torque that opposes the arm can hold it near a stall, where the sampled law
+        # creates energy the tank must then pay (fill)
         lam = 0.0
         if budget > 0.0:  # W(λ) = a₁λ + a₂λ² rises through the budget once on (0, 1)
             lam = (
@@ -133,12 +162,67 @@ class EnergyTank:
         self.withheld_j += whole - (a1 * lam + a2 * lam * lam)
         return lam
 
-    def settle(self, work_j: float, dissipation_w: float, dt_s: float) -> None:
-        """T ← min(T_max, T + β D Δt − W) after a step in which the residual did
-        ``work_j`` (J) and the law dissipated at ``dissipation_w`` (W, ≥ 0)."""
-        fill = self.beta * max(float(dissipation_w), 0.0) * dt_s
-        self.level_j = min(self.cap_j, self.level_j + fill - float(work_j))
+    def settle(self, work_j: float) -> None:
+        """T ← min(T_max, T − W) after a step in which the residual did ``work_j`` (J)."""
+        self.level_j = min(self.cap_j, self.level_j - float(work_j))
         self.overdrawn_j = max(self.overdrawn_j, -self.level_j)
+
+    def fill(self, dissipated_j: float) -> None:
+        """T ← min(T_max, T + β Δ) for Δ ≥ 0 the energy the law dissipated over a step
+        (J, :class:`PortDissipation`), T ← T + Δ where it created energy (Δ < 0; added to
+        :attr:`created_j`); a non-finite Δ: nothing."""
+        d = float(dissipated_j)
+        if not math.isfinite(d):
+            return
+        if d >= 0.0:
+            self.level_j = min(self.cap_j, self.level_j + self.beta * d)
+        else:
+            self.level_j += d
+            self.created_j -= d
+            self.overdrawn_j = max(self.overdrawn_j, -self.level_j)
+
+
+@dataclass
+class PortDissipation:
+    """The energy the passivity law dissipated over each step, measured at its sampled port
+    (J; module docstring):
+
+    .. math::
+
+        \\Delta_k = -(L_{k+1} - L_k) - \\tau_k^\\top (q_{k+1} - q_k)
+                    + (P_{pump,k} + P_{sync,k}) \\Delta t,
+
+    L = E − H = W_r(σ) + H_r + φ + ψ the law's virtual storage (its storage less the arm's
+    energy H = ½ q̇ᵀM q̇ + U on its model), τ_k the torque it held over step k. In
+    continuous time L̇ + q̇ᵀτ = P_pump + P_sync − D (CONTROL_LAW.md), so Δ = D dt; with a
+    zero-order hold τ_kᵀ(q_{k+1} − q_k) is exactly the work the law's torque did on the
+    arm, so Δ_k < 0 is energy the sampled law created, whatever the plant and the
+    disturbance. Δ_k is known once the law has acted at k + 1.
+    """
+
+    def __post_init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """A new episode: no step recorded."""
+        self._last: tuple[float, FloatArray, FloatArray, float] | None = None
+
+    def record(
+        self, diagnostics: dict[str, float], arm_energy_j: float, q: FloatArray,
+        tau: FloatArray, dt_s: float,
+    ) -> float:  # fmt: skip
+        """Δ of the step before this one (0 at an episode's first step; NaN where a
+        quantity is not finite), from this step's ``diagnostics`` (the law's, having acted
+        at ``q`` (rad) with ``tau`` (N·m)) and the arm's energy H at the state it read (J),
+        this step lasting ``dt_s`` (s)."""
+        virtual = float(diagnostics["energy"]) - float(arm_energy_j)
+        flows_j = (float(diagnostics["pump_power"]) + float(diagnostics["sync_power"])) * dt_s
+        dissipated = 0.0
+        if self._last is not None:
+            last_virtual, last_q, last_tau, last_flows_j = self._last
+            dissipated = -(virtual - last_virtual) - float(last_tau @ (q - last_q)) + last_flows_j
+        self._last = (virtual, np.array(q, dtype=float), np.array(tau, dtype=float), flows_j)
+        return dissipated if math.isfinite(dissipated) else math.nan
 
 
 #: The storage flows a :class:`BalanceLedger` reads off a passivity base's diagnostics.

@@ -57,11 +57,15 @@ Safeguards (both off by default, so a = 0 stays bit-identical to the base):
 * ``tank`` — an energy tank (:mod:`agents.energy_tank`, passivity bases): the residual,
   after the gate and the prior, is scaled by λ ∈ [0, 1] so the energy it injects is paid
   from a tank filled only by the law's own dissipation; the tank is settled with the work
-  the residual really did, (q_{k+1} − q_k)ᵀ(τ_applied − τ_base), at the measured states.
+  the residual really did, (q_{k+1} − q_k)ᵀ(τ_applied − τ_base), at the measured states,
+  and filled with the energy the law really dissipated, measured at its sampled port
+  (:class:`agents.energy_tank.PortDissipation`; where the sampled law created energy —
+  joules where a residual holds a torque near a stall — the tank pays it).
   Storage plus tank then grows by no more than the pump's, the re-synchronisation's and the
   disturbance's work, whatever the policy outputs. ``info["tank_level_j"]`` T after the
   step, ``info["tank_scale"]`` λ, ``info["tank_withheld_j"]`` the energy held back this
-  episode so far.
+  episode so far, ``info["tank_law_created_j"]`` the energy the sampled law created
+  so far (paid from the tank).
 
 Info (every step): ``tau_base_nm`` τ_base, ``tau_residual_nm`` γ scale ⊙ a_eff or
 M(q) γ α a_eff (a_eff = clip(a, −1, 1) without a prior; N·m, before the env's own
@@ -93,7 +97,7 @@ from gymnasium import spaces
 from gymnasium.envs.registration import EnvSpec
 
 from agents.base import Controller, FloatArray, ObservesAppliedTorque
-from agents.energy_tank import BalanceLedger, has_storage
+from agents.energy_tank import BalanceLedger, PortDissipation, has_storage
 from agents.policy import torque_to_action
 from agents.registry import make_controller
 from agents.residual_features import PRIOR_ERROR_FEATURES, ControllerFeatures, prior_error_names
@@ -232,6 +236,7 @@ class ResidualWrapper(
             self._prior_by = self._features_by  # a pool's: the same names on every path
         self.tank = spec.energy_tank() if spec.tank else None
         """The energy tank (None without ``tank``)."""
+        self._port = PortDissipation()  # what the law dissipated: the tank's only fill
         self.balance = BalanceLedger()
         """Storage + tank along the episode (:class:`agents.energy_tank.BalanceLedger`), kept
         for a base whose diagnostics give its storage and flows (the passivity laws); NaN
@@ -308,6 +313,7 @@ class ResidualWrapper(
         if self.tank is not None:
             self.tank.reset()
             info["tank_level_j"] = self.tank.level_j
+        self._port.reset()
         self.balance.reset()
         self._last_obs = self._augment(obs)
         return self._last_obs, info
@@ -350,7 +356,12 @@ class ResidualWrapper(
         else:  # M(q) γ α a: the acceleration α a (rad/s²) on the nominal model (cached M)
             tau_res = u.model.mass_matrix(q) @ ((gate * self.scale_accel_rad_s2) * a_eff)
         tank_scale = 1.0
-        if self.tank is not None:
+        if self.tank is not None:  # what the law dissipated over the step before, then the gate
+            model = u.model
+            arm_j = 0.5 * float(qd @ model.mass_matrix(q) @ qd) + float(model.potential(q))
+            self.tank.fill(
+                self._port.record(self.controller.diagnostics(), arm_j, q, tau_base, u.dt)
+            )
             tank_scale = self.tank.gate(u.model, q, qd, tau_base, tau_res, u.dt)
             tau_res = tank_scale * tau_res
         if isinstance(self.controller, ObservesAppliedTorque):  # e.g. a momentum observer
@@ -371,11 +382,11 @@ class ResidualWrapper(
             applied = np.minimum(np.maximum(tau_base + tau_res, -limits), limits)
             work = float((q_next - q) @ (applied - tau_base))
             if math.isfinite(work):
-                dissipation = float(diagnostics.get("dissipation", 0.0))
-                self.tank.settle(work, dissipation, u.dt)
+                self.tank.settle(work)
             info["tank_level_j"] = self.tank.level_j
             info["tank_scale"] = tank_scale
             info["tank_withheld_j"] = self.tank.withheld_j
+            info["tank_law_created_j"] = self.tank.created_j
         if self.action_penalty > 0.0:
             bonus = self.action_penalty * (1.0 - float(a @ a) / self.n)
             reward = float(reward) + bonus

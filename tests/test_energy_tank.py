@@ -59,6 +59,17 @@ def zero(rng: np.random.Generator, w: ResidualWrapper) -> np.ndarray:
     return np.zeros(w.n)
 
 
+def port_step(u, d: dict, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, last):
+    """The law's virtual storage L = E − H at this step, this step's record and the energy
+    the law dissipated over the step before, Δ = −ΔL − τᵀΔq + (P_pump + P_sync)Δt (J):
+    the tank's fill, computed here from the diagnostics on its own."""
+    virtual = d["energy"] - 0.5 * qd @ u.model.mass_matrix(q) @ qd - u.model.potential(q)
+    dissipated = 0.0
+    if last is not None:
+        dissipated = -(virtual - last[0]) - last[2] @ (q - last[1]) + last[3]
+    return virtual, (virtual, q, tau, (d["pump_power"] + d["sync_power"]) * u.dt), dissipated
+
+
 def episode(policy: Policy, tank: bool, disturbance=None, seed: int = 0, steps: int = 3000,
             **options) -> dict:  # fmt: skip
     """One episode of the two-link passivity controller with a residual of 0.2 τ_max: the
@@ -71,11 +82,15 @@ def episode(policy: Policy, tank: bool, disturbance=None, seed: int = 0, steps: 
     u = w.tracking_env
     energy, levels, works, qs, flows, saturated = [], [], [], [], 0.0, False
     info: dict = {}
+    last = None  # (L, q, τ_base, (P_pump + P_sync)Δt) of the step before
+    dissipated = 0.0  # Δ of the step before, computed here on its own (the tank's fill)
     try:
         for _ in range(steps):
+            q, qd = u.measured_joint_state()
             _, _, terminated, truncated, info = w.step(policy(rng, w))
-            w._last_tau_base = info["tau_base_nm"]  # type: ignore[attr-defined]
             d = info["controller"]
+            virtual, last, dissipated = port_step(u, d, q, qd, info["tau_base_nm"], last)
+            w._last_tau_base = info["tau_base_nm"]  # type: ignore[attr-defined]
             energy.append(d["energy"])  # E at the step's start: the flows of the steps before
             levels.append(info.get("tank_level_j", 0.0))
             works.append(info["disturbance_work_j"])  # W_d at the step's end
@@ -83,9 +98,13 @@ def episode(policy: Policy, tank: bool, disturbance=None, seed: int = 0, steps: 
             flows += (d["pump_power"] + d["sync_power"]) * u.dt
             saturated |= bool(np.any(np.abs(info["tau_base_nm"]) > u.torque_limits_nm))
             assert not (terminated or truncated)
-        last = (d["pump_power"] + d["sync_power"]) * u.dt
+        last_flows = (d["pump_power"] + d["sync_power"]) * u.dt
         t0 = w.residual_spec.tank_initial_j if tank else 0.0
-        excess = (energy[-1] + levels[-2]) - (energy[0] + t0) - (flows - last)
+        level = 0.0  # T at the last step's start: after the settling before and the fill
+        if tank:
+            beta = w.tank.beta if dissipated >= 0.0 else 1.0
+            level = min(levels[-2] + beta * dissipated, w.tank.cap_j)
+        excess = (energy[-1] + level) - (energy[0] + t0) - (flows - last_flows)
         excess -= works[-2]  # W_d up to the last step's start, where E and T are read
         return {
             "excess": excess, "min_level": min(levels), "q": np.array(qs),
@@ -107,35 +126,36 @@ def test_storage_plus_tank_grows_only_by_pump_sync_and_disturbance_work(policy, 
     run = episode(policy, tank=True, disturbance=disturbance, seed=seed)
     assert not run["saturated"]  # premise: the law's torque itself within the limits
     assert run["excess"] <= RESIDUE_J
-    assert run["min_level"] >= 0.0 and run["tank"].overdrawn_j == 0.0
+    # below 0 only by energy the sampled law itself created, which the tank pays (a
+    # bang-bang residual leaves the arm near a stall: 0.31 J, the residual held back)
+    assert run["tank"].overdrawn_j <= run["tank"].created_j
+    if policy is not bang:
+        assert run["min_level"] >= 0.0 and run["tank"].overdrawn_j == 0.0
     # the wrapper's own ledger: the same balance at the last step, never above the residue
     assert run["ledger"].excess_j == pytest.approx(run["excess"], abs=1e-9)
     assert run["ledger"].excess_max_j <= RESIDUE_J
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="KNOWN DEFECT (2026-11-28, issue 39): a constant residual torque through the tank "
-    "grows the law's own storage beyond its flows on the exact plant (excess 5.5 J here, "
-    "0.2-5.5 J from 1 kHz to 250 Hz) while the tank is never overdrawn: the tank pays the "
-    "residual's port work exactly, but the law's discrete balance breaks where a persistent "
-    "torque holds the arm near a stall; docs/rl.md, part A over the current law",
-)
 def test_a_constant_residual_through_the_tank_keeps_the_balance():
     """What issue 39 requires of the tank, on the exact closed loop: storage + tank never
-    above their start and the pump's and re-synchronisation's work by more than the law's
-    own residue (≤ 0.007 J undisturbed here with no residual) — for the simplest network of
-    all, one that outputs a constant (0.1 τ_max ⊙ (1, −1): the trained tank entrants of
-    the campaign saturate at about that). Tuned gains, 250 Hz, random path 1, 5 s."""
+    above their start and the pump's and re-synchronisation's work by more than the
+    simulator's residue — for the simplest network of all, one that outputs a constant
+    (0.1 τ_max ⊙ (1, −1): the trained tank entrants of the campaign saturate at about
+    that). It holds the arm near a stall, where the sampled law creates energy (joules:
+    this broke the balance by 5.5 J when the tank was filled with β D Δt, not with what the
+    law really dissipated at its port). Tuned gains, 250 Hz, random path 1, 5 s."""
     env = gym.make(TWO_LINK, control_hz=250.0, path="random", path_seed=1, max_episode_steps=1250)
     w = ResidualWrapper(env, "passivity", tank=True, scale_fraction=0.1, base_gains="tuned")
     try:
         w.reset(seed=0)
         action = np.array([1.0, -1.0], dtype=np.float32)
         for _ in range(1250):
-            w.step(action)
-        assert w.tank is not None and w.tank.overdrawn_j == 0.0  # the tank's premise holds
-        assert w.balance.excess_max_j <= 0.05
+            _, _, terminated, _, info = w.step(action)
+            assert not terminated
+        assert w.tank is not None and w.tank.created_j > 1.0  # premise: the stall's residue
+        assert info["tank_law_created_j"] == w.tank.created_j
+        assert w.balance.excess_max_j <= 1e-3
+        assert w.tank.overdrawn_j <= 0.01  # within the floor: the gate held the residual back
     finally:
         w.close()
 
@@ -186,16 +206,24 @@ def test_the_tank_fills_only_with_the_laws_dissipation_up_to_its_cap():
     w = ResidualWrapper(env, "passivity", tank=True, tank_beta=0.5, tank_initial_j=0.1,
                         tank_cap_j=0.100001)  # fmt: skip
     w.reset(seed=3)
-    level, capped = 0.1, False
+    u, level, capped, last = w.tracking_env, 0.1, False, None
+    measured, stated = [], []
     for _ in range(3000):
+        q, qd = u.measured_joint_state()
         _, _, _, _, info = w.step(np.zeros(2))
-        expected = level + 0.5 * info["controller"]["dissipation"] * w.tracking_env.dt
+        _, last, dissipated = port_step(u, info["controller"], q, qd, info["tau_base_nm"], last)
+        measured.append(dissipated)
+        stated.append(info["controller"]["dissipation"] * u.dt)
+        expected = level + (0.5 if dissipated >= 0.0 else 1.0) * dissipated
         capped |= expected > 0.100001
         level = min(0.100001, expected)
         assert info["tank_level_j"] == pytest.approx(level, abs=1e-12)
         assert info["tank_scale"] == 1.0
     assert capped  # the cap was reached and held
     w.close()
+    # what it filled with: the law's stated D Δt, to the sampling's residue (≤ 7.7e-6 J a
+    # step measured here), step by step
+    np.testing.assert_allclose(measured[1:], stated[:-1], rtol=0.0, atol=1e-5)
 
 
 def test_the_tank_reports_in_info_and_restarts_every_episode():
