@@ -16,6 +16,7 @@ import train.studies.verdict_study as vs
 from ptrack_gym.errors import InvalidConfigError
 from train.common.statistics import bootstrap_ci, hierarchical_bootstrap
 from train.evaluation.rate_record import RATES_KEY
+from train.studies.verdict_entrants import tank_markdown
 from train.studies.verdict_study import VerdictConfig, load_frame, run_verdict
 
 
@@ -406,7 +407,9 @@ def test_a_tank_entrants_tank_is_recorded_in_every_episode(tmp_path, residual_ru
     tank, plain = f"sb3:{tank_run}", f"sb3:{residual_run}"
     cfg = tiny(tmp_path / "v", seeds=2, entrants={"two_link": [tank, plain]})
     out = run_verdict(cfg, progress=False)
-    assert vs.columns(cfg)[-3:] == ("tank_overdrawn_j", "tank_withheld_j", "balance_excess_j")
+    assert vs.columns(cfg)[-4:] == (
+        "tank_overdrawn_j", "tank_withheld_j", "balance_excess_j", "tank_created_j"
+    )
     df = load_frame(out / "episodes.csv", vs.columns(cfg))
     mine = df[df["controller"] == tank]
     assert len(mine) == 2 * 2 * 2 and mine["tank_withheld_j"].notna().all()
@@ -427,11 +430,13 @@ def test_a_tank_entrants_tank_is_recorded_in_every_episode(tmp_path, residual_ru
     assert "The energy tanks" in text and f"| two_link | {tank} | 8 | 0 | 0 |" in text
     assert "The storage balance" in text and "| two_link | run | periodic 1 | 4 |" in text
     assert "| two_link | passivity | periodic 1 | 4 |" in text
-    # a file written before the balance column loads, the column NaN
+    assert (mine["tank_created_j"] >= 0.0).all()
+    # files written before the balance and the created-energy columns load, those NaN
     lines = (out / "episodes.csv").read_text().splitlines()
     older = tmp_path / "older.csv"
-    older.write_text("\n".join(line.rsplit(",", 1)[0] for line in lines) + "\n")
-    assert load_frame(older)["balance_excess_j"].isna().all()
+    older.write_text("\n".join(line.rsplit(",", 2)[0] for line in lines) + "\n")
+    assert load_frame(older)[["balance_excess_j", "tank_created_j"]].isna().all().all()
+    assert "| – | – |" in tank_markdown(load_frame(older))
     # a study without entrants keeps its columns (the committed verdict's)
     assert vs.columns(tiny(tmp_path / "w")) == vs.COLUMNS
 

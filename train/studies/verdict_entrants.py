@@ -168,8 +168,9 @@ def entrant_comparisons(
 #: disturbance's work (``agents.energy_tank.BalanceLedger``; added 2026-11-28, NaN in
 #: files written before) — and the same of a passivity law run alone, T = 0
 #: (:class:`EpisodeBalance`; added later on 2026-11-28, NaN in the controllers' rows of
-#: files written before).
-TANK_COLUMNS = ("tank_overdrawn_j", "tank_withheld_j", "balance_excess_j")
+#: files written before); then the energy the sampled law created and its tank paid
+#: (``EnergyTank.created_j``, J; added 2026-11-28 with the tank's port fill, NaN before).
+TANK_COLUMNS = ("tank_overdrawn_j", "tank_withheld_j", "balance_excess_j", "tank_created_j")
 
 
 def tank_record(env: Any) -> dict[str, float]:
@@ -188,6 +189,7 @@ def tank_record(env: Any) -> dict[str, float]:
     if tank is not None:
         out["tank_overdrawn_j"] = float(tank.overdrawn_j)
         out["tank_withheld_j"] = float(tank.withheld_j)
+        out["tank_created_j"] = float(tank.created_j)
     return out
 
 
@@ -264,7 +266,8 @@ def balance_markdown(df: pd.DataFrame) -> str:
 
 def tank_markdown(df: pd.DataFrame) -> str:
     """Markdown: per robot and tank entrant, in how many of its episodes the tank went below
-    zero (the balance's premise), the deepest overdraw and the median energy withheld."""
+    zero, the deepest overdraw, the median energy withheld and the energy the sampled law
+    created, which the tank paid (median and largest; "–" in files written before)."""
     if "tank_overdrawn_j" not in df.columns:
         return ""
     tanked = df[df["tank_overdrawn_j"].notna()]
@@ -272,14 +275,18 @@ def tank_markdown(df: pd.DataFrame) -> str:
         return ""
     lines = [
         "| robot | entrant | episodes | tank overdrawn in | deepest overdraw (J) "
-        "| median withheld (J) |",
-        "|---|---|---:|---:|---:|---:|",
+        "| median withheld (J) | law created, median (J) | law created, largest (J) |",
+        "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     for (robot, name), g in tanked.groupby(["robot", "controller"], sort=True):
         over = g["tank_overdrawn_j"] > 0.0
+        created = g["tank_created_j"] if "tank_created_j" in g else pd.Series(dtype=float)
+        made = (
+            f"{created.median():.3g} | {created.max():.3g}" if created.notna().any() else "– | –"
+        )
         lines.append(
             f"| {robot} | {name} | {len(g)} | {int(over.sum())} | "
-            f"{g['tank_overdrawn_j'].max():.3g} | {g['tank_withheld_j'].median():.3g} |"
+            f"{g['tank_overdrawn_j'].max():.3g} | {g['tank_withheld_j'].median():.3g} | {made} |"
         )
     return "\n".join(lines)
 
@@ -418,7 +425,9 @@ def entrants_section(
     if tanks:
         lines += [
             "", "The energy tanks (a tank entrant's residual spends only what its tank "
-            "holds, `../shared/TANK.md`; the gate predicts the work on the nominal model, "
-            "so an overdraw is where the plant differed):", "", tanks,
+            "holds, `../shared/TANK.md`; the tank is filled with what the law dissipated "
+            "at its sampled port and pays what the sampled law created; the gate predicts "
+            "the residual's work on the nominal model, so an overdraw is where the plant "
+            "differed or the law created more than the tank held):", "", tanks,
         ]  # fmt: skip
     return lines
