@@ -60,14 +60,14 @@ def zero(rng: np.random.Generator, w: ResidualWrapper) -> np.ndarray:
 
 
 def port_step(u, d: dict, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, last):
-    """The law's virtual storage L = E − H at this step, this step's record and the energy
-    the law dissipated over the step before, Δ = −ΔL − τᵀΔq + (P_pump + P_sync)Δt (J):
-    the tank's fill, computed here from the diagnostics on its own."""
+    """This step's record (the law's virtual storage L = E − H, q, τ, (P_pump + P_sync)Δt)
+    and the energy the law dissipated over the step before, Δ = −ΔL − τᵀΔq +
+    (P_pump + P_sync)Δt (J): the tank's fill, computed here from the diagnostics on its own."""
     virtual = d["energy"] - 0.5 * qd @ u.model.mass_matrix(q) @ qd - u.model.potential(q)
     dissipated = 0.0
     if last is not None:
         dissipated = -(virtual - last[0]) - last[2] @ (q - last[1]) + last[3]
-    return virtual, (virtual, q, tau, (d["pump_power"] + d["sync_power"]) * u.dt), dissipated
+    return (virtual, q, tau, (d["pump_power"] + d["sync_power"]) * u.dt), dissipated
 
 
 def episode(policy: Policy, tank: bool, disturbance=None, seed: int = 0, steps: int = 3000,
@@ -89,7 +89,7 @@ def episode(policy: Policy, tank: bool, disturbance=None, seed: int = 0, steps: 
             q, qd = u.measured_joint_state()
             _, _, terminated, truncated, info = w.step(policy(rng, w))
             d = info["controller"]
-            virtual, last, dissipated = port_step(u, d, q, qd, info["tau_base_nm"], last)
+            last, dissipated = port_step(u, d, q, qd, info["tau_base_nm"], last)
             w._last_tau_base = info["tau_base_nm"]  # type: ignore[attr-defined]
             energy.append(d["energy"])  # E at the step's start: the flows of the steps before
             levels.append(info.get("tank_level_j", 0.0))
@@ -211,7 +211,7 @@ def test_the_tank_fills_only_with_the_laws_dissipation_up_to_its_cap():
     for _ in range(3000):
         q, qd = u.measured_joint_state()
         _, _, _, _, info = w.step(np.zeros(2))
-        _, last, dissipated = port_step(u, info["controller"], q, qd, info["tau_base_nm"], last)
+        last, dissipated = port_step(u, info["controller"], q, qd, info["tau_base_nm"], last)
         measured.append(dissipated)
         stated.append(info["controller"]["dissipation"] * u.dt)
         expected = level + (0.5 if dissipated >= 0.0 else 1.0) * dissipated

@@ -408,7 +408,10 @@ def test_a_tank_entrants_tank_is_recorded_in_every_episode(tmp_path, residual_ru
     cfg = tiny(tmp_path / "v", seeds=2, entrants={"two_link": [tank, plain]})
     out = run_verdict(cfg, progress=False)
     assert vs.columns(cfg)[-4:] == (
-        "tank_overdrawn_j", "tank_withheld_j", "balance_excess_j", "tank_created_j"
+        "tank_overdrawn_j",
+        "tank_withheld_j",
+        "balance_excess_j",
+        "tank_created_j",
     )
     df = load_frame(out / "episodes.csv", vs.columns(cfg))
     mine = df[df["controller"] == tank]

@@ -281,9 +281,7 @@ def tank_markdown(df: pd.DataFrame) -> str:
     for (robot, name), g in tanked.groupby(["robot", "controller"], sort=True):
         over = g["tank_overdrawn_j"] > 0.0
         created = g["tank_created_j"] if "tank_created_j" in g else pd.Series(dtype=float)
-        made = (
-            f"{created.median():.3g} | {created.max():.3g}" if created.notna().any() else "– | –"
-        )
+        made = f"{created.median():.3g} | {created.max():.3g}" if created.notna().any() else "– | –"
         lines.append(
             f"| {robot} | {name} | {len(g)} | {int(over.sum())} | "
             f"{g['tank_overdrawn_j'].max():.3g} | {g['tank_withheld_j'].median():.3g} | {made} |"
