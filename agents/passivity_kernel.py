@@ -28,7 +28,8 @@ OUT = ("s_dd", "sigma_dot", "energy", "h_plus_w", "h_r", "phi", "psi", "pump_pow
        "r0_scale")  # fmt: skip
 #: Entries of the gains vector before the diagonals of K and D and the torque box (n each).
 GAINS = ("kappa", "R", "k_pump", "pump_metric", "speed_eps", "sync_rate", "sync_ratio",
-         "saturation_aware", "implicit", "midpoint", "hold_filter_s")  # fmt: skip
+         "saturation_aware", "implicit", "midpoint", "hold_filter_s",
+         "direction_guard")  # fmt: skip
 
 
 def law_tables(
@@ -84,7 +85,7 @@ def law_step(
     kappa, big_r, k_pump = gains[0], gains[1], gains[2]
     metric, speed_eps, sync_rate, sync_ratio = gains[3] > 0.5, gains[4], gains[5], gains[6]
     saturation_aware, implicit, midpoint = gains[7] > 0.5, gains[8] > 0.5, gains[9] > 0.5
-    hold_filter = gains[10]
+    hold_filter, guard = gains[10], gains[11]
     k0, d0, b0 = len(GAINS), len(GAINS) + n, len(GAINS) + 2 * n  # offsets of K, D, the box
     s, sd, sigma = state[0], state[1], state[2]
     m = 3 * n + 4
@@ -120,6 +121,20 @@ def law_step(
             sync = w * sync_rate * (num / den)
             sigma_dot = sigma_dot + sync
     s_t, s_td = s - sigma, sd - sigma_dot
+    mu_j = w_r_d_sigma - kappa * s_t - big_r * s_td  # μ √M_r(s) (J)
+    v_g = speed  # the direction's speed: v, or the guard's v_g = c |μ| dt above it
+    if guard > 0.0 and dt > 0.0 and speed > speed_eps and hold_state[0] > 0.5:
+        turn2 = 0.0  # |q̇ − q̇_prev|²_M: how much the velocity changed over the last period
+        for i in range(n):
+            acc = 0.0
+            for j in range(n):
+                acc += mass[i, j] * (qd[j] - hold_state[2 + j])
+            turn2 += (qd[i] - hold_state[2 + i]) * acc
+        v_g = max(speed, guard * math.sqrt(max(turn2, 0.0)))
+        if v_g > speed:  # σ̇₀ = v²/(v_g √M_r): the channel's power stays −μ √M_r σ̇₀
+            sigma_dot = sigma_dot - (1.0 - speed / v_g) * math.sqrt(speed2 / m_r)
+            s_td = sd - sigma_dot
+            mu_j = w_r_d_sigma - kappa * s_t - big_r * s_td
     phi, err2, dphi_qr, qd_tau_r, damper = 0.0, 0.0, 0.0, 0.0, 0.0
     for i in range(n):
         err = q[i] - ref[i]
@@ -133,7 +148,6 @@ def law_step(
         qd_tau_r += qd[i] * ref[2 * n + i]
     phi *= 0.5
     psi = 0.5 * kappa * s_t**2
-    mu_j = w_r_d_sigma - kappa * s_t - big_r * s_td  # μ √M_r(s) (J)
     mu = mu_j / math.sqrt(m_r)
     e_c = -kappa * s_t - big_r * s_td + dphi_qr
     h_plus_w = 0.5 * speed2 + potential + w_r_sigma
@@ -149,7 +163,7 @@ def law_step(
         f = -k_pump * h_plus_w * (tau_qd[i] if metric else qd[i])
         sync_rest = -gains[k0 + i] * (q[i] - ref[i]) - gains[d0 + i] * (qd[i] - ref[n + i] * sd)
         if speed > speed_eps:
-            sync_rest = sync_rest - (mu / speed) * tau_qd[i]
+            sync_rest = sync_rest - (mu / v_g) * tau_qd[i]
         pump_power += qd[i] * f
         out[off + i] = sync_rest
         out[off + n + i] = tau_r0

@@ -354,15 +354,21 @@ def test_small_solve_equals_numpy_and_refuses_singular_matrices() -> None:
 
 
 @pytest.mark.parametrize("robot", ["two_link", "iiwa"])
-def test_stepped_law_kernel_equals_numpy_with_the_hold_memory(robot: str) -> None:
+@pytest.mark.parametrize("guard", [0.0, 4.0])
+def test_stepped_law_kernel_equals_numpy_with_the_hold_memory(robot: str, guard: float) -> None:
     """30 steps of the compiled ``step`` and of ``step_numpy`` on the same measured states
     (near the path, noisy): the torque, (s, ṡ, σ) and the midpoint hold's memory — the
-    model's acceleration error estimate b̂ included — agree at every step."""
+    model's acceleration error estimate b̂ included — agree at every step; with the
+    direction guard too, which the noise sets off at some steps."""
     profile = robot_profile(robot)
     model = PinocchioModel(profile)
     tables = PassivityTables(default_path(profile), model, grid_size=256)
     gains = PassivityGains(K=40.0, D=0.04, kappa=20.0, R=2.0, k_pump=3.0)
-    ctrl, twin = (PassivityController(model, tables, gains, hold_filter_s=0.01) for _ in range(2))
+    ctrl, twin = (
+        PassivityController(model, tables, gains, hold_filter_s=0.01, direction_guard=guard)
+        for _ in range(2)
+    )
+    guarded = 0
     rng = np.random.default_rng(10)
     ref = tables(1.0)
     ctrl.reset(ref.q, ref.qd, s0=1.0, sd0=1.0, sigma0=1.0)
@@ -374,4 +380,11 @@ def test_stepped_law_kernel_equals_numpy_with_the_hold_memory(robot: str) -> Non
         assert rel(ctrl.step(q, qd, dt), twin.step_numpy(q, qd, dt)) <= 1e-10, k
         assert rel(ctrl._state, twin._state) <= 1e-10, k
         assert rel(ctrl._hold_state, twin._hold_state) <= 1e-9, k
+        out = ctrl.last
+        assert out is not None
+        speed = np.sqrt(qd @ model.mass_matrix(q) @ qd)
+        guarded += (
+            out.sigma_dot < speed / np.sqrt(tables(ctrl._state[0] - dt * ctrl._state[1]).m_r) - 1e-9
+        )
     assert np.abs(ctrl._hold_state[2 + 2 * profile.n :]).max() > 0.0  # b̂ moved: not vacuous
+    assert (guarded > 3) == (guard > 0.0)  # the guard acted at some steps, or never

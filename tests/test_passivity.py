@@ -20,14 +20,15 @@ from ptrack_gym.robots import PinocchioModel, robot_profile
 from ptrack_gym.robots.two_link import TwoLinkAnalyticModel
 
 
-def _closed_loop(model, ctrl, tau_d):
-    """ẋ for x = (q, q̇, s, ṡ, σ, ∫R s̃̇², ∫pump power, ∫q̇ᵀτ_d) under the exact model."""
+def _closed_loop(model, ctrl, tau_d, **law):
+    """ẋ for x = (q, q̇, s, ṡ, σ, ∫R s̃̇², ∫pump power, ∫q̇ᵀτ_d) under the exact model
+    (``law``: keywords of every ``ctrl.law`` call)."""
     n = model.n
 
     def rhs(_t, x):
         q, qd = x[:n], x[n : 2 * n]
         s, sd, sigma = x[2 * n : 2 * n + 3]
-        out = ctrl.law(q, qd, s, sd, sigma)
+        out = ctrl.law(q, qd, s, sd, sigma, **law)
         qdd = np.linalg.solve(
             model.mass_matrix(q), out.tau + tau_d - model.coriolis(q, qd) - model.gravity(q)
         )
@@ -38,26 +39,33 @@ def _closed_loop(model, ctrl, tau_d):
 
 
 @pytest.mark.parametrize(
-    ("k_pump", "tau_d", "sync_rate", "damper"),
+    ("k_pump", "tau_d", "sync_rate", "damper", "guard"),
     [
-        (0.0, np.zeros(2), 0.0, 0.0),
-        (4.0, np.zeros(2), 0.0, 0.0),
-        (0.0, np.array([1.5, -0.8]), 0.0, 0.0),
-        (0.0, np.zeros(2), 2.0, 0.0),
-        (0.0, np.zeros(2), 0.0, (0.9, 0.3)),
+        (0.0, np.zeros(2), 0.0, 0.0, 0.0),
+        (4.0, np.zeros(2), 0.0, 0.0, 0.0),
+        (0.0, np.array([1.5, -0.8]), 0.0, 0.0, 0.0),
+        (0.0, np.zeros(2), 2.0, 0.0, 0.0),
+        (0.0, np.zeros(2), 0.0, (0.9, 0.3), 0.0),
+        (4.0, np.array([1.5, -0.8]), 2.0, 0.0, 3.0),
     ],
-    ids=["passive", "pump", "disturbed", "resync", "damper"],
+    ids=["passive", "pump", "disturbed", "resync", "damper", "guarded"],
 )
-def test_theorem_4_1_energy_balance_exact_model(k_pump, tau_d, sync_rate, damper) -> None:
+def test_theorem_4_1_energy_balance_exact_model(k_pump, tau_d, sync_rate, damper, guard) -> None:
     """Along the closed loop integrated to 1e-10 relative accuracy (analytic two-link arm):
     Ė = −R s̃̇² − ėᵀDė + pump power + q̇ᵀτ_d (+ the low-speed re-synchronisation's
     ``sync_power`` when it is on); with k = 0, τ_d = 0 and no re-synchronisation, E is
     non-increasing. ``damper``: D beside φ's spring (e.g. ``damping_ratio``'s), whose
-    −ėᵀDė is part of ``dissipation``."""
+    −ėᵀDė is part of ``dissipation``. ``guard``: the direction guard c acting everywhere
+    (every evaluation told the velocity a period ago was 0, so v_g = c v: the phase
+    channel's torque −μ τ_q̇/v_g and σ̇₀ = v²/(v_g √M_r) both scaled by 1/c), which must
+    keep the balance exact."""
     model = TwoLinkAnalyticModel()
     tables = PassivityTables(default_path(robot_profile("two_link")), model)
     gains = PassivityGains(K=20.0, D=damper, kappa=2.0, R=0.5, k_pump=k_pump, sync_rate=sync_rate)
-    ctrl = PassivityController(model, tables, gains)
+    law = {}
+    if guard:  # dt > 0 turns the guard on; the sample hold adds no δ
+        law = {"dt": 1e-3, "qd_prev": np.zeros(2)}
+    ctrl = PassivityController(model, tables, gains, hold="sample", direction_guard=guard)
     s0 = 0.4
     ref = tables.exact(s0)
     q0 = ref.q + np.array([0.05, -0.04])  # off the path, moving: speed stays away from 0
@@ -66,7 +74,7 @@ def test_theorem_4_1_energy_balance_exact_model(k_pump, tau_d, sync_rate, damper
     qd0, sigma0, t_end = (0.3 * ref.qd, s0 - 0.1, 1.0) if sync_rate else (1.1 * ref.qd, s0, 2.0)
     x0 = np.concatenate([q0, qd0, [s0 + 0.03, 0.9, sigma0, 0.0, 0.0, 0.0, 0.0]])
     sol = solve_ivp(
-        _closed_loop(model, ctrl, tau_d),
+        _closed_loop(model, ctrl, tau_d, **law),
         (0.0, t_end),
         x0,
         method="DOP853",
@@ -76,7 +84,13 @@ def test_theorem_4_1_energy_balance_exact_model(k_pump, tau_d, sync_rate, damper
         t_eval=np.linspace(0.0, t_end, 201),
     )
     assert sol.success
-    energy = np.array([ctrl.law(x[:2], x[2:4], *x[4:7]).energy for x in sol.y.T])
+    energy = np.array([ctrl.law(x[:2], x[2:4], *x[4:7], **law).energy for x in sol.y.T])
+    if guard:  # not vacuous: σ̇ is the guarded one, the channel scaled
+        x = sol.y.T[50]
+        free = PassivityController(model, tables, gains, hold="sample")
+        assert ctrl.law(x[:2], x[2:4], *x[4:7], **law).sigma_dot != pytest.approx(
+            free.law(x[:2], x[2:4], *x[4:7], **law).sigma_dot, rel=1e-3
+        )
     dissipated, pumped, injected, synced = sol.y[7], sol.y[8], sol.y[9], sol.y[10]
     balance = energy - energy[0] + dissipated - pumped - injected - synced
     assert np.abs(balance).max() < 1e-7

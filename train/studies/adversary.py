@@ -54,6 +54,7 @@ import numpy as np
 import yaml
 
 import ptrack_gym  # noqa: F401  (registers the envs)
+from agents import passivity
 from ptrack_gym.errors import InvalidConfigError
 from train.common.arguments import RAN_AT_KEY
 from train.common.runs import open_run, worker_count, worker_pool
@@ -447,6 +448,8 @@ def _write_results(optuna: Any, storage: Any, cfg: AdversaryConfig, out: Path) -
                                 "spec": best.user_attrs["spec"],
                                 "s0": best.user_attrs.get("s0"),
                                 "gains": controller_gains(cfg, controller),
+                                # the passivity law's direction guard it ran with
+                                "direction_guard": passivity.DIRECTION_GUARD,
                             }
                 ten = sorted(runs, key=lambda t: t.value, reverse=True)[:WORST_CHECKED]
                 bounds[(controller, family, float(energy))] = on_bound(ten)

@@ -16,6 +16,7 @@ import numpy as np
 import yaml
 
 import ptrack_gym  # noqa: F401  (registers the envs)
+from agents import passivity
 from agents.policy import ControllerPolicy
 from agents.registry import GAIN_CHOICES, make_controller, pinned_rates
 from ptrack_gym.metrics import EpisodeRecord
@@ -306,7 +307,9 @@ def replay(
     (at the search's gains setting: its default, or its own tuned gains). A ``delivered``
     budget is sized at the onset from that controller's own state, so its work may differ.
     ``rates`` (gain rates by name) replace those of the replayed controller's gains: the
-    same case with other gains (e.g. ``{"damping_ratio": 0.5}`` for the passivity law)."""
+    same case with other gains (e.g. ``{"damping_ratio": 0.5}`` for the passivity law).
+    A passivity law replays with the direction guard the case records (a case found before
+    the guard existed: without it, as it ran)."""
     data = yaml.safe_load(worst_yml.read_text())
     entry = data["worst"][controller][family][f"{energy_j:g}"]
     cfg = saved_config(yaml.safe_load((worst_yml.parent / "config.yml").read_text()))
@@ -318,10 +321,17 @@ def replay(
         controller = under
     if rates:
         gains = {**(gains if isinstance(gains, Mapping) else {}), **rates}
-    return evaluate(
-        cfg.env_id, controller, spec, cfg.reset_seed, target.episode_s(), target.window(spec),
-        cfg.control_hz, cfg.failure_distance_rad, gains, entry.get("s0"),
-    )  # fmt: skip
+    # the passivity law's direction guard as the case ran (0: found before the guard)
+    default_guard = passivity.DIRECTION_GUARD
+    passivity.DIRECTION_GUARD = float(entry.get("direction_guard", 0.0))
+    try:
+        return evaluate(
+            cfg.env_id, controller, spec, cfg.reset_seed, target.episode_s(),
+            target.window(spec), cfg.control_hz, cfg.failure_distance_rad, gains,
+            entry.get("s0"),
+        )  # fmt: skip
+    finally:
+        passivity.DIRECTION_GUARD = default_guard
 
 
 def _line(outcome: Outcome) -> str:
