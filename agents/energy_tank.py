@@ -47,12 +47,15 @@ T ≥ 0. In discrete time (one control step of length Δt) the tank is kept at t
       \\Delta_k = -(L_{k+1} - L_k) - \\tau_k^\\top (q_{k+1} - q_k)
                   + (P_{pump,k} + P_{sync,k}) \\Delta t,
 
-  L = E − H the law's virtual storage and τ_k its torque held over the step:
-  T ← min(T_max, T + β Δ_k) where Δ_k ≥ 0 and T ← T + Δ_k where the sampled law *created*
-  energy (Δ_k < 0). In continuous time Δ = D dt; sampled, Δ_k = D_k Δt − ρ_k with a
-  residue ρ_k that a torque held while the arm turns near a stall makes positive by
-  joules (a residual holding 0.1 τ_max on the two-link at 250 Hz: 5.5 J over 5 s, which
-  broke the balance when the tank was filled with β D Δt).
+  L = E − H the law's virtual storage and τ_k its torque held over the step. Where the
+  sampled law *created* energy (Δ_k < 0) the tank pays it, T ← T + Δ_k, and the law owes
+  it (its debt P ← P − Δ_k); a later Δ_k > 0 first repays the debt in full, r = min(Δ_k, P),
+  and fills with β of the rest: T ← min(T_max, T + r + β(Δ_k − r)). In continuous time
+  Δ = D dt; sampled, Δ_k = D_k Δt − ρ_k with a residue ρ_k that a torque held while the
+  arm turns near a stall makes positive by joules (a residual holding 0.1 τ_max on the
+  two-link at 250 Hz: 5.5 J over 5 s, which broke the balance when the tank was filled
+  with β D Δt), and that sensor noise makes alternate in sign from step to step (hence the
+  debt: paid and repaid, noise costs the tank nothing).
 
 Then, on the exact plant (where the arm's energy H changes over a step by τ_appliedᵀΔq +
 the disturbance's work, up to the simulator's integration residue):
@@ -60,7 +63,7 @@ the disturbance's work, up to the simulator's integration residue):
 .. math::
 
     (E + T)_k - (E + T)_0 - \\sum (P_{pump} + P_{sync}) \\Delta t - W_d
-    = -(1 - \\beta) \\sum_{\\Delta_j \\ge 0} \\Delta_j - \\text{(cap)} + \\text{(simulator)}
+    = -(1 - \\beta) \\sum_j (\\Delta_j - r_j)^+ - \\text{(cap)} + \\text{(simulator)}
     \\le \\text{(simulator)},
 
 "cap" ≥ 0 what T_max turned away, T_k read after Δ_{k−1} is filled.
@@ -103,7 +106,8 @@ class EnergyTank:
     overdrawn_j: float = field(init=False, default=0.0)
     """The deepest the level went below 0 this episode (J, ≥ 0; 0 when it never did)."""
     created_j: float = field(init=False, default=0.0)
-    """Energy the sampled law created this episode and the tank paid: Σ max(−Δ_k, 0) (J)."""
+    """The most the sampled law owed the tank at any step this episode: the net energy it
+    had created, paid from the tank and not yet dissipated again (J, ≥ 0)."""
 
     def __post_init__(self) -> None:
         values = (self.beta, self.initial_j, self.floor_j, self.cap_j)
@@ -124,6 +128,7 @@ class EnergyTank:
         self.withheld_j = 0.0
         self.overdrawn_j = 0.0
         self.created_j = 0.0
+        self._debt_j = 0.0
 
     def gate(
         self,
@@ -168,18 +173,22 @@ class EnergyTank:
         self.overdrawn_j = max(self.overdrawn_j, -self.level_j)
 
     def fill(self, dissipated_j: float) -> None:
-        """T ← min(T_max, T + β Δ) for Δ ≥ 0 the energy the law dissipated over a step
-        (J, :class:`PortDissipation`), T ← T + Δ where it created energy (Δ < 0; added to
-        :attr:`created_j`); a non-finite Δ: nothing."""
+        """The tank after a step in which the law dissipated Δ = ``dissipated_j`` (J,
+        :class:`PortDissipation`; module docstring): Δ < 0, created energy, is paid
+        (T ← T + Δ) and owed; Δ > 0 repays what is owed, then fills with β of the rest, up
+        to T_max. A non-finite Δ: nothing."""
         d = float(dissipated_j)
         if not math.isfinite(d):
             return
-        if d >= 0.0:
-            self.level_j = min(self.cap_j, self.level_j + self.beta * d)
-        else:
+        if d < 0.0:
             self.level_j += d
-            self.created_j -= d
+            self._debt_j -= d
+            self.created_j = max(self.created_j, self._debt_j)
             self.overdrawn_j = max(self.overdrawn_j, -self.level_j)
+            return
+        repaid = min(d, self._debt_j)
+        self._debt_j -= repaid
+        self.level_j = min(self.cap_j, self.level_j + repaid + self.beta * (d - repaid))
 
 
 @dataclass
