@@ -244,13 +244,15 @@ class PassivityController:
     takes τ_q̇/v := 0 "when speed ≈ 0". Sampled, "≈ 0" is a matter of the period: where the
     velocity turns by about itself within one (the arm held near a stall by a persistent
     torque — a payload, a residual policy), the held direction flips from sample to sample,
-    the channel becomes a relay, and the loop settles into a period-2 cycle in which the
-    sampled law creates energy — 9.9 J in 5 s on the two-link at 250 Hz under a constant
-    0.1 τ_max ⊙ (1, −1) (tuned gains, random path 1), its port's balance
-    (:class:`agents.energy_tank.PortDissipation`) broken by joules. With the guard the
-    direction's speed is v_g = max(v, c |q̇ − q̇_prev|_M), |q̇ − q̇_prev|_M the velocity's
-    change over the last period in the metric M(q) (the midpoint hold's memory; the guard
-    waits for it, and is off with the sample hold), and
+    the braking channel (μ > 0) becomes a relay, and the loop settles into a period-2 cycle
+    in which the sampled law creates energy — 9.9 J in 5 s on the two-link at 250 Hz under
+    a constant 0.1 τ_max ⊙ (1, −1) (tuned gains, random path 1), its port's balance
+    (:class:`agents.energy_tank.PortDissipation`) broken by joules. With the guard, while
+    μ > 0, the direction's speed is v_g = max(v, c |Δq̇|_M), Δq̇ = dt (a − b̂) the velocity
+    change the midpoint hold's memory expected over the last period (the model's
+    acceleration under the torque held, less its error estimate b̂: a prediction, so sensor
+    noise barely moves it; the guard waits for that memory and is off with the sample
+    hold), and
 
     .. math::
 
@@ -259,11 +261,12 @@ class PassivityController:
 
     (σ̇ = σ̇₀ + the re-synchronisation), so the channel's power −μ v²/v_g is still
     −μ √M_r σ̇₀ and the storage balance of Theorem 4.1 holds exactly in continuous time
-    for any v_g ≥ v (``tests/test_passivity.py``, "guarded"). Where the velocity changed by
-    less than v/c over the period — on the path at any admissible rate, everywhere the
-    survey of ``bench/direction_guard.py`` looked — v_g = v and the law is unchanged, bit
-    for bit. In the cycle above it is a damper of rate ≤ 1/(c dt) instead: the energy the
-    sampled law creates falls from 9.9 J to 0.03 J (c = 4; 0.10 J at c = 2).
+    for any v_g ≥ v (``tests/test_passivity.py``, "guarded"). A driving channel (μ ≤ 0) is
+    left alone: its flips dissipate, and weakening it would hold a slow arm in a stall.
+    Where the velocity changes by less than v/c over a period — on the path — v_g = v and
+    the law is unchanged, bit for bit (``bench/direction_guard.py``). In the cycle above it
+    is a damper of rate ≤ 1/(c dt) instead: the energy the sampled law creates falls from
+    9.9 J to 0.03 J (c = 4).
     """
 
     def __init__(
@@ -428,7 +431,7 @@ class PassivityController:
         sigma: float,
         dt: float = 0.0,
         accel_bias: FloatArray | None = None,
-        qd_prev: FloatArray | None = None,
+        turn: FloatArray | None = None,
     ) -> LawOutput:
         """Evaluate the control law at (q, q̇, s, ṡ, σ); changes no state.
 
@@ -495,11 +498,11 @@ class PassivityController:
                 sigma_dot = sigma_dot + sync
         s_t, s_td = s - sigma, sd - sigma_dot
         mu_j = ref_sigma.w_r_d - g.kappa * s_t - g.R * s_td  # μ √M_r(s) (J)
-        v_g = speed  # the direction's speed (``direction_guard``: max(v, c |q̇ − q̇_prev|_M))
+        v_g = speed  # the direction's speed (``direction_guard``: max(v, c |Δq̇|_M))
         guard = self.direction_guard
-        if guard > 0.0 and dt > 0.0 and speed > g.speed_eps and qd_prev is not None:
-            turn = qd - np.asarray(qd_prev, dtype=np.float64)
-            v_g = max(speed, guard * np.sqrt(max(float(turn @ mass @ turn), 0.0)))
+        if guard > 0.0 and dt > 0.0 and speed > g.speed_eps and turn is not None and mu_j > 0.0:
+            dv = np.asarray(turn, dtype=np.float64)
+            v_g = max(speed, guard * np.sqrt(max(float(dv @ mass @ dv), 0.0)))
             if v_g > speed:  # σ̇₀ = v²/(v_g √M_r): the channel's power stays −μ √M_r σ̇₀
                 sigma_dot = sigma_dot - (1.0 - speed / v_g) * np.sqrt(speed2 / m_r)
                 s_td = sd - sigma_dot
@@ -667,12 +670,14 @@ class PassivityController:
         q, qd = state_arrays(q, qd)
         n, hs = self.n, self._hold_state
         midpoint = self.hold == "midpoint" and dt > 0.0
+        # the direction guard's Δq̇ = dt (a − b̂): the velocity change the hold's memory
+        # expected over the last period (its model's acceleration less its error estimate)
+        turn = dt * (hs[2 + n : 2 + 2 * n] - hs[2 + 2 * n :]) if midpoint and hs[0] > 0.5 else None
         if midpoint and hs[0] > 0.5 and self.hold_filter_s > 0.0:  # b̂ ← b̂ + λ (error − b̂)
             error = hs[2 + n : 2 + 2 * n] - (qd - hs[2 : 2 + n]) / hs[1]
             lam = 1.0 - math.exp(-dt / self.hold_filter_s)
             hs[2 + 2 * n :] += lam * (error - hs[2 + 2 * n :])
-        qd_prev = hs[2 : 2 + n].copy() if midpoint and hs[0] > 0.5 else None
-        out = self.law(q, qd, st.s, st.sd, st.sigma, dt, hs[2 + 2 * n :], qd_prev)
+        out = self.law(q, qd, st.s, st.sd, st.sigma, dt, hs[2 + 2 * n :], turn)
         if midpoint:  # what the model predicts the arm does under the torque sent
             h = self.model.inverse_dynamics(q, qd, np.zeros(n))
             hs[2 + n : 2 + 2 * n] = np.linalg.solve(self.model.mass_matrix(q), out.tau - h)

@@ -122,15 +122,15 @@ def law_step(
             sigma_dot = sigma_dot + sync
     s_t, s_td = s - sigma, sd - sigma_dot
     mu_j = w_r_d_sigma - kappa * s_t - big_r * s_td  # μ √M_r(s) (J)
-    v_g = speed  # the direction's speed: v, or the guard's v_g = c |μ| dt above it
-    if guard > 0.0 and dt > 0.0 and speed > speed_eps and hold_state[0] > 0.5:
-        turn2 = 0.0  # |q̇ − q̇_prev|²_M: how much the velocity changed over the last period
+    v_g = speed  # the direction's speed: v, or the guard's c |Δq̇|_M above it (μ > 0)
+    if guard > 0.0 and dt > 0.0 and speed > speed_eps and hold_state[0] > 0.5 and mu_j > 0.0:
+        turn2 = 0.0  # |Δq̇|²_M, Δq̇ = dt (a − b̂): the last period's expected velocity change
         for i in range(n):
             acc = 0.0
             for j in range(n):
-                acc += mass[i, j] * (qd[j] - hold_state[2 + j])
-            turn2 += (qd[i] - hold_state[2 + i]) * acc
-        v_g = max(speed, guard * math.sqrt(max(turn2, 0.0)))
+                acc += mass[i, j] * (hold_state[2 + n + j] - hold_state[2 + 2 * n + j])
+            turn2 += (hold_state[2 + n + i] - hold_state[2 + 2 * n + i]) * acc
+        v_g = max(speed, guard * dt * math.sqrt(max(turn2, 0.0)))
         if v_g > speed:  # σ̇₀ = v²/(v_g √M_r): the channel's power stays −μ √M_r σ̇₀
             sigma_dot = sigma_dot - (1.0 - speed / v_g) * math.sqrt(speed2 / m_r)
             s_td = sd - sigma_dot

@@ -20,15 +20,21 @@ from ptrack_gym.robots import PinocchioModel, robot_profile
 from ptrack_gym.robots.two_link import TwoLinkAnalyticModel
 
 
-def _closed_loop(model, ctrl, tau_d, **law):
+def _guarded(qd: np.ndarray) -> dict:
+    """Keywords of ``law`` that set the direction guard off everywhere: dt > 0, and the
+    velocity change told is q̇ itself, so v_g = c v."""
+    return {"dt": 1e-3, "turn": qd}
+
+
+def _closed_loop(model, ctrl, tau_d, guarded: bool = False):
     """ẋ for x = (q, q̇, s, ṡ, σ, ∫R s̃̇², ∫pump power, ∫q̇ᵀτ_d) under the exact model
-    (``law``: keywords of every ``ctrl.law`` call)."""
+    (``guarded``: every ``ctrl.law`` call with :func:`_guarded`)."""
     n = model.n
 
     def rhs(_t, x):
         q, qd = x[:n], x[n : 2 * n]
         s, sd, sigma = x[2 * n : 2 * n + 3]
-        out = ctrl.law(q, qd, s, sd, sigma, **law)
+        out = ctrl.law(q, qd, s, sd, sigma, **(_guarded(qd) if guarded else {}))
         qdd = np.linalg.solve(
             model.mass_matrix(q), out.tau + tau_d - model.coriolis(q, qd) - model.gravity(q)
         )
@@ -56,15 +62,13 @@ def test_theorem_4_1_energy_balance_exact_model(k_pump, tau_d, sync_rate, damper
     ``sync_power`` when it is on); with k = 0, τ_d = 0 and no re-synchronisation, E is
     non-increasing. ``damper``: D beside φ's spring (e.g. ``damping_ratio``'s), whose
     −ėᵀDė is part of ``dissipation``. ``guard``: the direction guard c acting everywhere
-    (every evaluation told the velocity a period ago was 0, so v_g = c v: the phase
+    (every evaluation told the velocity changed by q̇ itself, so v_g = c v: the phase
     channel's torque −μ τ_q̇/v_g and σ̇₀ = v²/(v_g √M_r) both scaled by 1/c), which must
     keep the balance exact."""
     model = TwoLinkAnalyticModel()
     tables = PassivityTables(default_path(robot_profile("two_link")), model)
     gains = PassivityGains(K=20.0, D=damper, kappa=2.0, R=0.5, k_pump=k_pump, sync_rate=sync_rate)
-    law = {}
-    if guard:  # dt > 0 turns the guard on; the sample hold adds no δ
-        law = {"dt": 1e-3, "qd_prev": np.zeros(2)}
+    # the guard acts with dt > 0; the sample hold adds no δ
     ctrl = PassivityController(model, tables, gains, hold="sample", direction_guard=guard)
     s0 = 0.4
     ref = tables.exact(s0)
@@ -74,7 +78,7 @@ def test_theorem_4_1_energy_balance_exact_model(k_pump, tau_d, sync_rate, damper
     qd0, sigma0, t_end = (0.3 * ref.qd, s0 - 0.1, 1.0) if sync_rate else (1.1 * ref.qd, s0, 2.0)
     x0 = np.concatenate([q0, qd0, [s0 + 0.03, 0.9, sigma0, 0.0, 0.0, 0.0, 0.0]])
     sol = solve_ivp(
-        _closed_loop(model, ctrl, tau_d, **law),
+        _closed_loop(model, ctrl, tau_d, guarded=bool(guard)),
         (0.0, t_end),
         x0,
         method="DOP853",
@@ -84,12 +88,15 @@ def test_theorem_4_1_energy_balance_exact_model(k_pump, tau_d, sync_rate, damper
         t_eval=np.linspace(0.0, t_end, 201),
     )
     assert sol.success
-    energy = np.array([ctrl.law(x[:2], x[2:4], *x[4:7], **law).energy for x in sol.y.T])
+    law = [_guarded(x[2:4]) if guard else {} for x in sol.y.T]
+    energy = np.array(
+        [ctrl.law(x[:2], x[2:4], *x[4:7], **k).energy for x, k in zip(sol.y.T, law, strict=True)]
+    )
     if guard:  # not vacuous: σ̇ is the guarded one, the channel scaled
-        x = sol.y.T[50]
+        x, k = sol.y.T[50], law[50]
         free = PassivityController(model, tables, gains, hold="sample")
-        assert ctrl.law(x[:2], x[2:4], *x[4:7], **law).sigma_dot != pytest.approx(
-            free.law(x[:2], x[2:4], *x[4:7], **law).sigma_dot, rel=1e-3
+        assert ctrl.law(x[:2], x[2:4], *x[4:7], **k).sigma_dot != pytest.approx(
+            free.law(x[:2], x[2:4], *x[4:7], **k).sigma_dot, rel=1e-3
         )
     dissipated, pumped, injected, synced = sol.y[7], sol.y[8], sol.y[9], sol.y[10]
     balance = energy - energy[0] + dissipated - pumped - injected - synced
@@ -321,3 +328,36 @@ def test_theorem_4_1_balance_holds_with_the_remedy_acting() -> None:
     balance = energy - energy[0] + sol.y[7] - sol.y[8] - sol.y[9] - sol.y[10]
     assert min(scales) < 0.5  # the remedy acted
     assert np.abs(balance).max() < 1e-7
+
+
+def test_the_direction_guard_softens_only_a_braking_channel() -> None:
+    """With the velocity told to change by ten times itself over the period (so c |Δq̇|_M
+    = 40 v), the guard turns a *braking* phase channel (μ > 0: s̃ < 0, the virtual phase
+    behind σ) into a damper of speed v_g = 40 v — its torque and σ̇₀ both 1/40 of the
+    unguarded law's — and leaves a *driving* one (μ < 0) alone: that one dissipates when
+    its direction flips, and weakening it would hold a slow arm in a stall."""
+    model = TwoLinkAnalyticModel()
+    tables = PassivityTables(default_path(robot_profile("two_link")), model)
+    gains = PassivityGains(K=20.0, kappa=2.0, R=0.5, k_pump=0.0)
+    guarded = PassivityController(model, tables, gains, hold="sample", direction_guard=4.0)
+    free = PassivityController(model, tables, gains, hold="sample", direction_guard=0.0)
+    ref = tables.exact(0.4)
+    q, qd = ref.q + np.array([0.02, -0.01]), 0.3 * ref.qd
+    v = np.sqrt(qd @ model.mass_matrix(q) @ qd)
+    for s_tilde, braking in ((-2.0, True), (2.0, False)):
+        state = (0.4 + s_tilde, 0.3, 0.4)
+        on = guarded.law(q, qd, *state, dt=1e-3, turn=10.0 * qd)
+        off = free.law(q, qd, *state, dt=1e-3, turn=10.0 * qd)
+        mu_off = tables.exact(0.4).w_r_d - gains.kappa * s_tilde - gains.R * (0.3 - off.sigma_dot)
+        assert (mu_off > 0.0) == braking  # premise
+        if braking:
+            assert on.sigma_dot == pytest.approx(off.sigma_dot / 40.0, rel=1e-12)
+            # the channel: −μ M q̇ / v_g, μ = (W_r'(σ) − κ s̃ − R s̃̇)/√M_r(s) at the new σ̇
+            mu_on = tables.exact(0.4).w_r_d - gains.kappa * s_tilde - gains.R * (0.3 - on.sigma_dot)
+            mu_on /= np.sqrt(tables.exact(state[0]).m_r)
+            channel = on.tau_sync - on.tau_r0 + gains.K * (q - tables.exact(state[0]).q)
+            expected = -(mu_on / (40.0 * v)) * (model.mass_matrix(q) @ qd)
+            np.testing.assert_allclose(channel, expected, rtol=1e-6, atol=1e-9)
+        else:
+            np.testing.assert_array_equal(on.tau, off.tau)
+            assert on.sigma_dot == off.sigma_dot
