@@ -2,7 +2,7 @@
 the class docstring of :class:`~agents.passivity.PassivityController`): the same episodes
 with the guard off (c = 0) and on (the package's c), side by side.
 
-    python bench/direction_guard.py                      # all three parts (~15 min, 1 core)
+    python bench/direction_guard.py                      # all three parts (~25 min, 1 core)
     python bench/direction_guard.py --part stall --robots two_link --hz 250
 
 Parts:
@@ -12,8 +12,10 @@ Parts:
   unguarded one bit for bit (the joint trajectory), else both path-distance RMS.
 * ``stall`` — a constant torque 0.1 τ_max ⊙ (1, −1, 1, …) held on the arm (a residual
   wrapper's constant action, no tank), tuned gains, random paths 1-5: the energy the
-  sampled law created at its port (Σ max(−Δ_k, 0), :class:`agents.energy_tank.PortDissipation`)
-  and the path-distance RMS, off and on.
+  sampled law created at its port (the most it owed at any step, as
+  :class:`agents.energy_tank.EnergyTank` keeps it: created energy less what it dissipated
+  since, from :class:`agents.energy_tank.PortDissipation`) and the path-distance RMS,
+  off and on.
 * ``disturbed`` — tuned gains, random paths 1-5, 2 seeds, the disturbance families at
   level 1: the path-distance RMS off and on (their ratio) and the energy created.
 
@@ -70,7 +72,7 @@ def episode(
         action = np.zeros(w.n, dtype=np.float32)
     u, port = w.tracking_env, PortDissipation()
     w.reset(seed=seed)
-    qs, dist, created = [], [], 0.0
+    qs, dist, created, debt = [], [], 0.0, 0.0
     try:
         for _ in range(steps):
             q, qd = u.measured_joint_state()
@@ -80,7 +82,8 @@ def episode(
                 break
             arm = 0.5 * float(qd @ u.model.mass_matrix(q) @ qd) + float(u.model.potential(q))
             d = port.record(info["controller"], arm, q, info["tau_base_nm"], u.dt)
-            created += max(-d, 0.0) if np.isfinite(d) else np.inf
+            debt = max(debt - d, 0.0) if np.isfinite(d) else np.inf  # owed, as the tank's
+            created = max(created, debt)
             true_q = u.joint_state()[0]
             qs.append(true_q)
             dist.append(u.projector.nearest(true_q).distance)
