@@ -225,7 +225,7 @@ class PortDissipation:
         at ``q`` (rad) with ``tau`` (N·m)) and the arm's energy H at the state it read (J),
         this step lasting ``dt_s`` (s)."""
         virtual = float(diagnostics["energy"]) - float(arm_energy_j)
-        flows_j = (float(diagnostics["pump_power"]) + float(diagnostics["sync_power"])) * dt_s
+        flows_j = supplied_power_w(diagnostics) * dt_s
         dissipated = 0.0
         if self._last is not None:
             last_virtual, last_q, last_tau, last_flows_j = self._last
@@ -242,6 +242,12 @@ def has_storage(diagnostics: dict[str, float]) -> bool:
     """Whether a controller's ``diagnostics`` carry a storage a :class:`BalanceLedger` can
     keep (every one of :data:`BALANCE_KEYS`: the passivity laws')."""
     return all(key in diagnostics for key in BALANCE_KEYS)
+
+
+def supplied_power_w(diagnostics: dict[str, float]) -> float:
+    """P_pump + P_sync (W): the power a passivity law's ``diagnostics`` say its pump and
+    re-synchronisation supply to its storage (the flows both ledgers credit)."""
+    return float(diagnostics["pump_power"]) + float(diagnostics["sync_power"])
 
 
 @dataclass
@@ -296,9 +302,7 @@ class BalanceLedger:
         excess = stored - self._start - self._flows_j - self._work_d_j
         if not math.isfinite(excess):
             excess = math.inf
-        self._flows_j += (
-            float(diagnostics["pump_power"]) + float(diagnostics["sync_power"])
-        ) * dt_s
+        self._flows_j += supplied_power_w(diagnostics) * dt_s
         self._work_d_j = float(work_d_after_j)
         self.excess_j = excess
         self.excess_max_j = (
