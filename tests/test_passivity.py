@@ -15,6 +15,7 @@ import ptrack_gym  # noqa: F401  (registers the envs)
 from agents.passivity import PassivityController, PassivityGains
 from agents.passivity_tables import PassivityTables, passivity_tables
 from agents.policy import ControllerPolicy
+from ptrack_gym.errors import InvalidConfigError
 from ptrack_gym.paths import default_path
 from ptrack_gym.robots import PinocchioModel, robot_profile
 from ptrack_gym.robots.two_link import TwoLinkAnalyticModel
@@ -361,3 +362,16 @@ def test_the_direction_guard_softens_only_a_braking_channel() -> None:
         else:
             np.testing.assert_array_equal(on.tau, off.tau)
             assert on.sigma_dot == off.sigma_dot
+
+
+@pytest.mark.parametrize("guard", [-1.0, float("nan"), float("inf")])
+def test_a_bad_direction_guard_is_refused_at_construction(guard: float) -> None:
+    """A negative or non-finite c is refused by name when the controller is built (0 is off)."""
+    model = TwoLinkAnalyticModel()
+    tables = PassivityTables(default_path(robot_profile("two_link")), model)
+    with pytest.raises(InvalidConfigError, match="direction_guard"):
+        PassivityController(model, tables, PassivityGains(), direction_guard=guard)
+    assert (
+        PassivityController(model, tables, PassivityGains(), direction_guard=0.0).direction_guard
+        == 0.0
+    )
