@@ -55,18 +55,35 @@ T ≥ 0. In discrete time (one control step of length Δt) the tank is kept at t
   arm turns near a stall makes positive by joules (a residual holding 0.1 τ_max on the
   two-link at 250 Hz: 5.5 J over 5 s, which broke the balance when the tank was filled
   with β D Δt), and that sensor noise makes alternate in sign from step to step (hence the
-  debt: paid and repaid, noise costs the tank nothing).
+  debt: paid and repaid, noise costs the tank nothing);
+* **pay** (:meth:`EnergyTank.pay_arm`, with the fill): with what the arm gained over the
+  step beyond the commanded torque's work, as the law measures it (:class:`ArmEnergyObserver`,
+  u_k = ΔH − τ_kᵀΔq on the model at the measured states): u_k > 0 is paid, T ← T − u_k, and
+  owed by the arm; a later u_k < 0 repays that debt, never more (a loss — friction, a
+  disturbance braking the arm — fills nothing). With an exact sensor on the exact plant
+  u_k is the disturbance's work, so the tank pays a push's energy too (the law's
+  dissipation of it refills β of it); behind a delayed sensor u_k is energy the sampled
+  loop gained that neither the law's port nor the residual's settlement sees (a chattering
+  residual behind the 2-ms delay at 250 Hz: 12 J in 5 s).
 
-Then, on the exact plant (where the arm's energy H changes over a step by τ_appliedᵀΔq +
-the disturbance's work, up to the simulator's integration residue):
+Then, on what the law measures (E at its measured states, on its model), with u_j the
+arm's observed gains and A_k ≥ 0 what the arm still owes the tank:
 
 .. math::
 
     (E + T)_k - (E + T)_0 - \\sum (P_{pump} + P_{sync}) \\Delta t - W_d
-    = -(1 - \\beta) \\sum_j (\\Delta_j - r_j)^+ - \\text{(cap)} + \\text{(simulator)}
-    \\le \\text{(simulator)},
+    = \\sum_{j<k} (u_j - w_{d,j}) - A_k - (1 - \\beta) \\sum_{j<k} (\\Delta_j - r_j)^+
+      - \\text{(cap)}
 
-"cap" ≥ 0 what T_max turned away, T_k read after Δ_{k−1} is filled.
+(w_{d,j} the disturbance's work over step j), "cap" ≥ 0 what T_max turned away, T_k read
+after step k − 1's fill and pay. Since A_k = Σ u_j + (the losses that repaid nothing)
+≥ max(0, Σ u_j), the right side is ≤ min(Σ (u_j − w_{d,j}), −W_d): on the exact plant with an
+exact sensor u_j − w_{d,j} is the simulator's residue, so the excess is at most that
+residue; behind any sensor, delayed or noisy, or on a plant other than the model, it is
+at most −W_d — ≤ 0 where the disturbance did no net negative work (a delay alone), and at
+most the energy a disturbance took out (damping, friction, braking torques) where a
+wrong sensor or model booked some of that loss as a repayment (millijoules under the
+noise preset).
 """
 
 from __future__ import annotations
@@ -108,6 +125,10 @@ class EnergyTank:
     created_j: float = field(init=False, default=0.0)
     """The most the sampled law owed the tank at any step this episode: the net energy it
     had created, paid from the tank and not yet dissipated again (J, ≥ 0)."""
+    arm_gained_j: float = field(init=False, default=0.0)
+    """The most the arm owed the tank at any step this episode: the net energy it had
+    gained beyond the commanded torque's work (:class:`ArmEnergyObserver`), paid from the
+    tank and not yet given back (J, ≥ 0)."""
 
     def __post_init__(self) -> None:
         values = (self.beta, self.initial_j, self.floor_j, self.cap_j)
@@ -128,7 +149,9 @@ class EnergyTank:
         self.withheld_j = 0.0
         self.overdrawn_j = 0.0
         self.created_j = 0.0
+        self.arm_gained_j = 0.0
         self._debt_j = 0.0
+        self._arm_debt_j = 0.0
 
     def gate(
         self,
@@ -190,6 +213,25 @@ class EnergyTank:
         self._debt_j -= repaid
         self.level_j = min(self.cap_j, self.level_j + repaid + self.beta * (d - repaid))
 
+    def pay_arm(self, gained_j: float) -> None:
+        """The tank after a step in which the arm gained u = ``gained_j`` (J) beyond the
+        commanded torque's work (:class:`ArmEnergyObserver`; module docstring): u > 0 is
+        paid (T ← T − u) and owed by the arm; u < 0 repays what is owed, never more — a
+        loss (friction, a disturbance braking the arm) fills nothing. A non-finite u:
+        nothing."""
+        u = float(gained_j)
+        if not math.isfinite(u):
+            return
+        if u > 0.0:
+            self.level_j -= u
+            self._arm_debt_j += u
+            self.arm_gained_j = max(self.arm_gained_j, self._arm_debt_j)
+            self.overdrawn_j = max(self.overdrawn_j, -self.level_j)
+            return
+        repaid = min(-u, self._arm_debt_j)
+        self._arm_debt_j -= repaid
+        self.level_j = min(self.cap_j, self.level_j + repaid)
+
 
 @dataclass
 class PortDissipation:
@@ -232,6 +274,53 @@ class PortDissipation:
             dissipated = -(virtual - last_virtual) - float(last_tau @ (q - last_q)) + last_flows_j
         self._last = (virtual, np.array(q, dtype=float), np.array(tau, dtype=float), flows_j)
         return dissipated if math.isfinite(dissipated) else math.nan
+
+
+@dataclass
+class ArmEnergyObserver:
+    """The energy the arm gained over each step beyond the work the commanded torque did on
+    it, as the law's sensors and model see it (J) — a passivity observer (Hannaford and
+    Ryu, T-RO 2002) at the arm's port:
+
+    .. math::
+
+        u_k = H(q_{k+1}, \\dot q_{k+1}) - H(q_k, \\dot q_k) - \\tau_k^\\top (q_{k+1} - q_k),
+
+    H = ½ q̇ᵀM q̇ + U on the nominal model at the measured states, τ_k the torque
+    commanded over step k (base + residual, within the limits). With an exact sensor on the
+    exact plant u_k is the disturbance's work over the step (+ the simulator's residue).
+    A sensor other than the truth makes it differ by energy no force accounts for: with a
+    state reported one step late, u_k = (τ_{k−1} − τ_k)ᵀ(q_k − q_{k−1}) in true states —
+    positive, step after step, where a torque alternates while the arm moves (a residual
+    chattering behind a delayed sensor: 12 J in 5 s on the two-link, which the law's port
+    never sees). The tank pays u > 0 (:meth:`EnergyTank.pay_arm`), so its balance holds on
+    what the law measures whatever the sensor; the price is that it pays the disturbance's
+    injected work too. u_k is known once the next state is read.
+    """
+
+    def __post_init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """A new episode: no step recorded."""
+        self._last: tuple[float, FloatArray] | None = None
+        self._tau: FloatArray | None = None
+
+    def record(self, arm_energy_j: float, q: FloatArray) -> float:
+        """u of the step that ends at the measured ``q`` (rad), the arm's energy H there
+        ``arm_energy_j`` (J): 0 at an episode's first step or before a torque was
+        :meth:`commanded`; NaN where a quantity is not finite."""
+        gained = 0.0
+        if self._last is not None and self._tau is not None:
+            last_energy, last_q = self._last
+            gained = float(arm_energy_j) - last_energy - float(self._tau @ (q - last_q))
+        self._last = (float(arm_energy_j), np.array(q, dtype=float))
+        self._tau = None
+        return gained if math.isfinite(gained) else math.nan
+
+    def commanded(self, tau_nm: FloatArray) -> None:
+        """The torque τ_k (N·m) held over the step that starts at the last :meth:`record`."""
+        self._tau = np.array(tau_nm, dtype=float)
 
 
 #: The storage flows a :class:`BalanceLedger` reads off a passivity base's diagnostics.

@@ -60,12 +60,15 @@ Safeguards (both off by default, so a = 0 stays bit-identical to the base):
   the residual really did, (q_{k+1} − q_k)ᵀ(τ_applied − τ_base), at the measured states,
   and filled with the energy the law really dissipated, measured at its sampled port
   (:class:`agents.energy_tank.PortDissipation`; where the sampled law created energy —
-  joules where a residual holds a torque near a stall — the tank pays it).
-  Storage plus tank then grows by no more than the pump's, the re-synchronisation's and the
-  disturbance's work, whatever the policy outputs. ``info["tank_level_j"]`` T after the
-  step, ``info["tank_scale"]`` λ, ``info["tank_withheld_j"]`` the energy held back this
-  episode so far, ``info["tank_law_created_j"]`` the energy the sampled law created
-  so far (paid from the tank).
+  joules where a residual holds a torque near a stall — the tank pays it); it also pays
+  what the arm gained beyond the commanded torque's work as the law measures it
+  (:class:`agents.energy_tank.ArmEnergyObserver`: a disturbance's work, a delayed or
+  noisy sensor's energy). Storage plus tank then grows by no more than the pump's, the
+  re-synchronisation's and the disturbance's work, whatever the policy outputs, behind a
+  delayed sensor too. ``info["tank_level_j"]`` T after the step, ``info["tank_scale"]``
+  λ, ``info["tank_withheld_j"]`` the energy held back this episode so far,
+  ``info["tank_law_created_j"]`` the most the sampled law owed the tank so far,
+  ``info["tank_arm_gained_j"]`` the most the arm owed it.
 
 Info (every step): ``tau_base_nm`` τ_base, ``tau_residual_nm`` γ scale ⊙ a_eff or
 M(q) γ α a_eff (a_eff = clip(a, −1, 1) without a prior; N·m, before the env's own
@@ -97,7 +100,12 @@ from gymnasium import spaces
 from gymnasium.envs.registration import EnvSpec
 
 from agents.base import Controller, FloatArray, ObservesAppliedTorque
-from agents.energy_tank import BalanceLedger, PortDissipation, has_storage
+from agents.energy_tank import (
+    ArmEnergyObserver,
+    BalanceLedger,
+    PortDissipation,
+    has_storage,
+)
 from agents.policy import torque_to_action
 from agents.registry import make_controller
 from agents.residual_features import PRIOR_ERROR_FEATURES, ControllerFeatures, prior_error_names
@@ -237,6 +245,7 @@ class ResidualWrapper(
         self.tank = spec.energy_tank() if spec.tank else None
         """The energy tank (None without ``tank``)."""
         self._port = PortDissipation()  # what the law dissipated: the tank's only fill
+        self._arm = ArmEnergyObserver()  # what the arm gained unexplained: the tank pays it
         self.balance = BalanceLedger()
         """Storage + tank along the episode (:class:`agents.energy_tank.BalanceLedger`), kept
         for a base whose diagnostics give its storage and flows (the passivity laws); NaN
@@ -314,6 +323,7 @@ class ResidualWrapper(
             self.tank.reset()
             info["tank_level_j"] = self.tank.level_j
         self._port.reset()
+        self._arm.reset()
         self.balance.reset()
         self._last_obs = self._augment(obs)
         return self._last_obs, info
@@ -362,8 +372,14 @@ class ResidualWrapper(
             self.tank.fill(
                 self._port.record(self.controller.diagnostics(), arm_j, q, tau_base, u.dt)
             )
+            self.tank.pay_arm(self._arm.record(arm_j, q))
             tank_scale = self.tank.gate(u.model, q, qd, tau_base, tau_res, u.dt)
             tau_res = tank_scale * tau_res
+            # the torque applied, the limits' clipping included (the action's float32
+            # rounding, ~1e-7 of τ, is left to the law's own residue)
+            limits = self.torque_limits_nm
+            applied = np.minimum(np.maximum(tau_base + tau_res, -limits), limits)
+            self._arm.commanded(applied)
         if isinstance(self.controller, ObservesAppliedTorque):  # e.g. a momentum observer
             self.controller.applied_torque(tau_base + tau_res, u.dt)
         inner_action = torque_to_action(tau_base + tau_res, self.torque_limits_nm)
@@ -376,17 +392,14 @@ class ResidualWrapper(
             )
         if self.tank is not None:
             q_next, _ = u.measured_joint_state()
-            # the torque applied beyond the base's, the limits' clipping included (the
-            # action's float32 rounding, ~1e-7 of τ, is left to the law's own residue)
-            limits = self.torque_limits_nm
-            applied = np.minimum(np.maximum(tau_base + tau_res, -limits), limits)
-            work = float((q_next - q) @ (applied - tau_base))
+            work = float((q_next - q) @ (applied - tau_base))  # beyond the base's torque
             if math.isfinite(work):
                 self.tank.settle(work)
             info["tank_level_j"] = self.tank.level_j
             info["tank_scale"] = tank_scale
             info["tank_withheld_j"] = self.tank.withheld_j
             info["tank_law_created_j"] = self.tank.created_j
+            info["tank_arm_gained_j"] = self.tank.arm_gained_j
         if self.action_penalty > 0.0:
             bonus = self.action_penalty * (1.0 - float(a @ a) / self.n)
             reward = float(reward) + bonus

@@ -40,8 +40,13 @@ from train.evaluation.verdict import report_metrics, words
 
 COLUMNS: tuple[str, ...] = (*KEY_COLUMNS, *METRIC_NAMES, "steps", "wall_s")
 #: Columns added after results were first written (``tau_fb_rms_frac``: issue 37; a
-#: verdict's ``balance_excess_j`` and ``tank_created_j``: issue 39).
-LATER_COLUMNS: tuple[str, ...] = ("tau_fb_rms_frac", "balance_excess_j", "tank_created_j")
+#: verdict's ``balance_excess_j``, ``tank_created_j`` and ``tank_arm_gained_j``: issue 39).
+LATER_COLUMNS: tuple[str, ...] = (
+    "tau_fb_rms_frac",
+    "balance_excess_j",
+    "tank_created_j",
+    "tank_arm_gained_j",
+)
 
 
 class CorruptResultsError(PtrackError, ValueError):

@@ -169,8 +169,17 @@ def entrant_comparisons(
 #: files written before) — and the same of a passivity law run alone, T = 0
 #: (:class:`EpisodeBalance`; added later on 2026-11-28, NaN in the controllers' rows of
 #: files written before); then the energy the sampled law created and its tank paid
-#: (``EnergyTank.created_j``, J; added 2026-11-28 with the tank's port fill, NaN before).
-TANK_COLUMNS = ("tank_overdrawn_j", "tank_withheld_j", "balance_excess_j", "tank_created_j")
+#: (``EnergyTank.created_j``, J; added 2026-11-28 with the tank's port fill, NaN before);
+#: then the energy the arm gained beyond the commanded torque's work and its tank paid
+#: (``EnergyTank.arm_gained_j``, J: a delayed or noisy sensor's, a disturbance's; added
+#: 2026-11-28 with the arm's observer, NaN before).
+TANK_COLUMNS = (
+    "tank_overdrawn_j",
+    "tank_withheld_j",
+    "balance_excess_j",
+    "tank_created_j",
+    "tank_arm_gained_j",
+)
 
 
 def tank_record(env: Any) -> dict[str, float]:
@@ -190,6 +199,7 @@ def tank_record(env: Any) -> dict[str, float]:
         out["tank_overdrawn_j"] = float(tank.overdrawn_j)
         out["tank_withheld_j"] = float(tank.withheld_j)
         out["tank_created_j"] = float(tank.created_j)
+        out["tank_arm_gained_j"] = float(tank.arm_gained_j)
     return out
 
 
@@ -266,8 +276,9 @@ def balance_markdown(df: pd.DataFrame) -> str:
 
 def tank_markdown(df: pd.DataFrame) -> str:
     """Markdown: per robot and tank entrant, in how many of its episodes the tank went below
-    zero, the deepest overdraw, the median energy withheld and the energy the sampled law
-    created, which the tank paid (median and largest; "–" in files written before)."""
+    zero, the deepest overdraw, the median energy withheld, the energy the sampled law
+    created and the energy the arm gained beyond the commanded torque's work, both of which
+    the tank paid (median and largest; "–" in files written before)."""
     if "tank_overdrawn_j" not in df.columns:
         return ""
     tanked = df[df["tank_overdrawn_j"].notna()]
@@ -275,16 +286,21 @@ def tank_markdown(df: pd.DataFrame) -> str:
         return ""
     lines = [
         "| robot | entrant | episodes | tank overdrawn in | deepest overdraw (J) "
-        "| median withheld (J) | law created, median (J) | law created, largest (J) |",
-        "|---|---|---:|---:|---:|---:|---:|---:|",
+        "| median withheld (J) | law created, median (J) | law created, largest (J) "
+        "| arm gained, median (J) | arm gained, largest (J) |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
+
+    def spread(g: pd.DataFrame, column: str) -> str:
+        x = g[column] if column in g else pd.Series(dtype=float)
+        return f"{x.median():.3g} | {x.max():.3g}" if x.notna().any() else "– | –"
+
     for (robot, name), g in tanked.groupby(["robot", "controller"], sort=True):
         over = g["tank_overdrawn_j"] > 0.0
-        created = g["tank_created_j"] if "tank_created_j" in g else pd.Series(dtype=float)
-        made = f"{created.median():.3g} | {created.max():.3g}" if created.notna().any() else "– | –"
         lines.append(
             f"| {robot} | {name} | {len(g)} | {int(over.sum())} | "
-            f"{g['tank_overdrawn_j'].max():.3g} | {g['tank_withheld_j'].median():.3g} | {made} |"
+            f"{g['tank_overdrawn_j'].max():.3g} | {g['tank_withheld_j'].median():.3g} | "
+            f"{spread(g, 'tank_created_j')} | {spread(g, 'tank_arm_gained_j')} |"
         )
     return "\n".join(lines)
 
@@ -424,8 +440,10 @@ def entrants_section(
         lines += [
             "", "The energy tanks (a tank entrant's residual spends only what its tank "
             "holds, `../shared/TANK.md`; the tank is filled with what the law dissipated "
-            "at its sampled port and pays what the sampled law created; the gate predicts "
-            "the residual's work on the nominal model, so an overdraw is where the plant "
-            "differed or the law created more than the tank held):", "", tanks,
+            "at its sampled port and pays what the sampled law created and what the arm "
+            "gained beyond the commanded torque's work, as the law measures it — a "
+            "disturbance's, a delayed or noisy sensor's; the gate predicts the residual's "
+            "work on the nominal model, so an overdraw is where the plant differed or the "
+            "tank paid more than it held):", "", tanks,
         ]  # fmt: skip
     return lines
