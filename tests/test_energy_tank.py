@@ -469,6 +469,32 @@ def test_a_tank_residual_trains_and_is_evaluated_with_its_tank(tmp_path):
             validate(parse_args(argv(tmp_path / "bad", "--tank", *bad)))
 
 
+def test_a_deploy_file_puts_a_residual_trained_without_a_tank_behind_one(tmp_path):
+    """``deploy.yml``'s ``tank: true``: the run's env is rebuilt for evaluation with the
+    tank (default parameters) and the run's own gate; the policy is unchanged."""
+    pytest.importorskip("stable_baselines3")
+    from agents.residual_wrapper import ResidualWrapper as Wrapper
+    from train.evaluation.episode import EpisodeSettings, _sb3_env_and_policy
+    from train.rl.config import parse_args
+    from train.rl.run import run
+
+    out = tmp_path / "run"
+    run(parse_args(["--algo", "sac", "--residual", "passivity", "--steps", "60", "--out",
+                    str(out), "--episode-s", "0.2", "--eval-freq", "1000", "--checkpoint-freq",
+                    "1000", "--hp", "learning_starts=50", "--hp", "batch_size=16", "--hp",
+                    "policy_kwargs=dict(net_arch=[16])"]))  # fmt: skip
+    (out / "deploy.yml").write_text("gate_rad: 0.002\ngate_deadband_rad: 0.002\ntank: true\n")
+    settings = EpisodeSettings(TWO_LINK, 0.2, 250.0, "on_path", 0.5, 0.01)
+    env, _ = _sb3_env_and_policy(f"sb3:{out}", settings, "periodic", 1.0)
+    wrapper = env
+    while not isinstance(wrapper, Wrapper):
+        wrapper = wrapper.env
+    assert wrapper.tank is not None and wrapper.tank.beta == ResidualSpec().tank_beta
+    assert wrapper.gate_rad == 0.002
+    _, info = env.reset(seed=0)
+    assert info["tank_level_j"] == ResidualSpec().tank_initial_j
+
+
 def test_a_tank_beta_without_a_tank_is_refused():
     pytest.importorskip("stable_baselines3")
     from train.rl.config import TrainConfigError, parse_args, validate

@@ -412,6 +412,7 @@ def test_a_run_is_evaluated_with_its_acceleration_authority(study: Path, tmp_pat
         ("residual-passivity_s0", "gate_rad: -0.01\n", "gate_rad must be"),
         ("residual-passivity_s0", "gate_deadband_rad: 0.01\n", "needs gate_rad"),
         ("pure_s0", "gate_rad: 0.01\n", "need a residual run"),
+        ("residual-passivity_s0", "tank: 1\n", "tank must be true or false"),
     ],
 )
 def test_a_bad_deploy_file_is_named_before_anything_runs(

@@ -112,14 +112,16 @@ def run_config(run_dir: Path) -> dict[str, Any]:
 
 
 #: The keys a run's ``deploy.yml`` may set (the residual wrapper's gate, rad).
-DEPLOY_KEYS = ("gate_rad", "gate_deadband_rad")
+DEPLOY_KEYS = ("gate_rad", "gate_deadband_rad", "tank")
 
 
 def deploy_safeguards(run_dir: Path) -> dict[str, Any]:
     """The evaluation-time safeguards of a run: ``deploy.yml``'s mapping (keys of
     :data:`DEPLOY_KEYS`), or {} without one. They override the training config's own
-    gate when the run's env is rebuilt for evaluation; the policy is unchanged (its
-    observation does not include the gate).
+    gate — and, with ``tank: true``, put the residual behind an energy tank of the
+    default parameters (:mod:`agents.energy_tank`; a passivity base only) — when the run's
+    env is rebuilt for evaluation; the policy is unchanged (its observation includes
+    neither the gate nor the tank).
 
     Raises:
         InvalidConfigError: an unknown key, a bad value (``check_safeguards``), or a
@@ -136,6 +138,8 @@ def deploy_safeguards(run_dir: Path) -> dict[str, Any]:
     if run_config(run_dir)["config"]["residual"] == "none":
         raise InvalidConfigError(f"{path}: deployment safeguards need a residual run")
     check_safeguards(0.0, data.get("gate_rad"), data.get("gate_deadband_rad", 0.0))
+    if not isinstance(data.get("tank", False), bool):
+        raise InvalidConfigError(f"{path}: tank must be true or false, got {data['tank']!r}")
     return dict(data)
 
 
