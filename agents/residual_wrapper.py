@@ -366,7 +366,7 @@ class ResidualWrapper(
         else:  # M(q) γ α a: the acceleration α a (rad/s²) on the nominal model (cached M)
             tau_res = u.model.mass_matrix(q) @ ((gate * self.scale_accel_rad_s2) * a_eff)
         tank_scale = 1.0
-        if self.tank is not None:  # what the law dissipated over the step before, then the gate
+        if self.tank is not None:  # the step before: what the law dissipated, the arm gained
             model = u.model
             arm_j = 0.5 * float(qd @ model.mass_matrix(q) @ qd) + float(model.potential(q))
             self.tank.fill(
