@@ -78,6 +78,15 @@ def test_every_packaged_campaign_validates(name: str) -> None:
     assert validate_campaign(ROOT / f"train/configs/campaign/{name}.yml") >= 10
 
 
+@pytest.mark.parametrize(
+    ("name", "runs"), [("rl_generalize_two_link", 70), ("rl_generalize_iiwa", 4)]
+)
+def test_issue_39s_campaigns_validate_with_their_runs(name: str, runs: int) -> None:
+    """The protocol's campaigns (7 groups x 10 seeds on the two-link; the iiwa's 4-seed
+    screen) parse into the runs their headers say."""
+    assert validate_campaign(ROOT / f"train/configs/campaign/{name}.yml") == runs
+
+
 def test_groups_merge_overrides_key_by_key(tmp_path: Path) -> None:
     runs = load_campaign(write(tmp_path, TINY), tmp_path / "out")
     assert [Path(r.out).name for r in runs] == [
