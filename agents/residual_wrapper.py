@@ -368,7 +368,7 @@ class ResidualWrapper(
         tank_scale = 1.0
         if self.tank is not None:  # the step before: what the law dissipated, the arm gained
             model = u.model
-            arm_j = 0.5 * float(qd @ model.mass_matrix(q) @ qd) + float(model.potential(q))
+            arm_j = model.kinetic_energy(q, qd) + float(model.potential(q))  # H (J)
             self.tank.fill(
                 self._port.record(self.controller.diagnostics(), arm_j, q, tau_base, u.dt)
             )

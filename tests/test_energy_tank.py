@@ -95,7 +95,7 @@ def arm_paid(level: float, debt: float, gained: float, cap: float):
 
 def arm_energy(u, q: np.ndarray, qd: np.ndarray) -> float:
     """H = ½ q̇ᵀM q̇ + U on the env's nominal model (J)."""
-    return float(0.5 * qd @ u.model.mass_matrix(q) @ qd + u.model.potential(q))
+    return u.model.kinetic_energy(q, qd) + float(u.model.potential(q))
 
 
 def applied_torque(u, info: dict) -> np.ndarray:
@@ -436,6 +436,16 @@ def test_the_gate_scales_to_the_budget_exactly_on_the_predicted_work():
     assert tank.gate(model, q, qd, tau_base, -tau_res, 1e-3) == 1.0
 
 
+def _tiny_run_argv(out, *extra) -> list[str]:
+    """``ptrack train`` arguments of a 100-step SAC residual over the passivity law (0.2-s
+    episodes under periodic torques) into ``out``, then ``extra``."""
+    return ["--algo", "sac", "--residual", "passivity", "--steps", "100", "--out", str(out),
+            "--episode-s", "0.2", "--eval-freq", "1000", "--checkpoint-freq", "1000",
+            "--disturbance", "periodic:0.5", "--hp", "learning_starts=50", "--hp",
+            "buffer_size=1000", "--hp", "batch_size=16", "--hp",
+            "policy_kwargs=dict(net_arch=[16])", *extra]  # fmt: skip
+
+
 def test_a_tank_residual_trains_and_is_evaluated_with_its_tank(tmp_path):
     pytest.importorskip("stable_baselines3")
     from agents.residual_wrapper import ResidualWrapper as Wrapper
@@ -443,13 +453,7 @@ def test_a_tank_residual_trains_and_is_evaluated_with_its_tank(tmp_path):
     from train.rl.config import TrainConfigError, parse_args, validate
     from train.rl.run import run
 
-    def argv(out, *extra):
-        return ["--algo", "sac", "--residual", "passivity", "--steps", "100", "--out", str(out),
-                "--episode-s", "0.2", "--eval-freq", "1000", "--checkpoint-freq", "1000",
-                "--disturbance", "periodic:0.5", "--hp", "learning_starts=50", "--hp",
-                "buffer_size=1000", "--hp", "batch_size=16", "--hp",
-                "policy_kwargs=dict(net_arch=[16])", *extra]  # fmt: skip
-
+    argv = _tiny_run_argv
     out = tmp_path / "run"
     run(parse_args(argv(out, "--tank", "--tank-beta", "0.8")))
     settings = EpisodeSettings(TWO_LINK, 0.2, 250.0, "on_path", 0.5, 0.01)
@@ -479,10 +483,7 @@ def test_a_deploy_file_puts_a_residual_trained_without_a_tank_behind_one(tmp_pat
     from train.rl.run import run
 
     out = tmp_path / "run"
-    run(parse_args(["--algo", "sac", "--residual", "passivity", "--steps", "60", "--out",
-                    str(out), "--episode-s", "0.2", "--eval-freq", "1000", "--checkpoint-freq",
-                    "1000", "--hp", "learning_starts=50", "--hp", "batch_size=16", "--hp",
-                    "policy_kwargs=dict(net_arch=[16])"]))  # fmt: skip
+    run(parse_args(_tiny_run_argv(out)))
     (out / "deploy.yml").write_text("gate_rad: 0.002\ngate_deadband_rad: 0.002\ntank: true\n")
     settings = EpisodeSettings(TWO_LINK, 0.2, 250.0, "on_path", 0.5, 0.01)
     env, _ = _sb3_env_and_policy(f"sb3:{out}", settings, "periodic", 1.0)

@@ -23,7 +23,7 @@ import yaml
 
 from train.evaluation.config import load_config
 from train.evaluation.episode import EpisodeSettings, Task, run_episode
-from train.evaluation.policies import sb3_files
+from train.evaluation.policies import deploy_safeguards, sb3_files
 from train.rl.config import parse_args
 from train.studies.action_probe import action_usage
 
@@ -179,12 +179,7 @@ def test_the_two_link_sweeps_run_the_residuals_bases_alone_at_their_pins(monkeyp
         assert bool(bare.base_gain_mismatches()) == moved, name
 
 
-TANKED = [
-    m
-    for m in MODELS
-    if (ROOT / sb3_files(m)[0] / "deploy.yml").exists()
-    and yaml.safe_load((ROOT / sb3_files(m)[0] / "deploy.yml").read_text()).get("tank")
-]
+TANKED = [m for m in MODELS if deploy_safeguards(ROOT / sb3_files(m)[0]).get("tank")]
 
 
 @pytest.mark.parametrize("model", TANKED)
